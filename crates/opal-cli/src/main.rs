@@ -1,0 +1,41 @@
+//! `opal` — command-line front end of the Opal toolkit.
+//!
+//! Exit codes: 0 success, 1 a check failed (energy violated, fit above its bound),
+//! 2 usage / I-O / bad input. Errors print `error: {cause chain}`.
+
+mod cmd;
+mod util;
+
+use clap::{Parser, Subcommand};
+
+/// Opal: recover optical properties of real surfaces by physically based light simulation.
+#[derive(Parser, Debug)]
+#[command(name = "opal", version, about, long_about = None)]
+struct Cli {
+    /// Hide progress bars.
+    #[arg(long, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run every workflow on data shipped with Opal and write results to `opal-demo/`.
+    Demo(cmd::demo::DemoArgs),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    util::set_quiet(cli.quiet);
+    let result = match cli.command {
+        Command::Demo(a) => cmd::demo::run(a),
+    };
+    match result {
+        Ok(code) => std::process::exit(code),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::exit(2);
+        }
+    }
+}

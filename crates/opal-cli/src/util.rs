@@ -1,0 +1,68 @@
+//! Shared CLI helpers: atomic output files, progress bars, input/output path checks.
+
+use anyhow::{Context, Result, bail};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+static QUIET: AtomicBool = AtomicBool::new(false);
+
+/// Hide progress bars from now on.
+pub fn set_quiet(q: bool) {
+    QUIET.store(q, Ordering::Relaxed);
+}
+
+/// A progress bar on stderr with `len` steps; hidden with `--quiet` or when stderr is not a
+/// terminal.
+pub fn progress(len: u64, msg: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len);
+    if QUIET.load(Ordering::Relaxed) || !std::io::stderr().is_terminal() {
+        pb.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    pb.set_style(
+        ProgressStyle::with_template("{msg:12} [{elapsed_precise}] {wide_bar} {pos}/{len} (eta {eta})")
+            .expect("valid template"),
+    );
+    pb.set_message(msg.to_string());
+    pb
+}
+
+/// Writes a file atomically: the content goes to a temporary file in the target folder, which
+/// is renamed into place only when `write` succeeded. A crash never leaves a half-written file.
+pub fn write_atomic(path: &Path, write: impl FnOnce(&mut std::fs::File) -> Result<()>) -> Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create folder {}", dir.display()))?;
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".opal-tmp-")
+        .tempfile_in(&dir)
+        .with_context(|| format!("cannot create a temporary file in {}", dir.display()))?;
+    write(tmp.as_file_mut()).with_context(|| format!("while writing {}", path.display()))?;
+    tmp.as_file_mut().flush()?;
+    tmp.persist(path).with_context(|| format!("cannot move the result into {}", path.display()))?;
+    Ok(())
+}
+
+/// Writes bytes atomically.
+pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomic(path, |f| {
+        f.write_all(bytes)?;
+        Ok(())
+    })
+}
+
+/// Refuses an output path that is one of the inputs.
+pub fn ensure_not_input(output: &Path, inputs: &[&Path]) -> Result<()> {
+    let out = std::fs::canonicalize(output).ok();
+    for i in inputs {
+        if let (Some(o), Ok(i2)) = (&out, std::fs::canonicalize(i)) {
+            if *o == i2 {
+                bail!("refusing to overwrite the input file {}", i.display());
+            }
+        }
+    }
+    Ok(())
+}

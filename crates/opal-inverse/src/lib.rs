@@ -1,0 +1,7 @@
+//! # Opal inverse workflows
+//!
+//! Built only on the public API of the `opal` engine:
+//! * method A — fitting a micro-facet normal distribution to goniophotometer curves,
+//! * method B — energy and reciprocity checks of BRDF lobes, normalisation fitting,
+//! * method C — de-lighting (diffuse albedo textures from multi-view HDR photos).
+#![warn(missing_docs)]

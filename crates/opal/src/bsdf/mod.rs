@@ -1,0 +1,107 @@
+//! BSDF contract and models.
+//!
+//! * [`Bxdf`]: a scattering model in the local shading frame (z = shading normal). Both `wo`
+//!   and `wi` point *away* from the surface. `eval` returns f(wo, wi) **without** the cosine;
+//!   `pdf` is per unit solid angle of `wi`; `sample` draws `wi` given `wo`.
+//! * [`TransportMode`]: `Radiance` when tracing from the camera (wo = towards the camera),
+//!   `Importance` when tracing from lights (wo = towards the light). Non-symmetric BTDFs
+//!   (refraction: the 1/η² radiance scaling) differ between the two.
+//! * [`Bxdfs`]: the runtime set (enum, `match` dispatch, no allocation per hit).
+//!
+//! Models: [`lambert`]. Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
+
+pub mod lambert;
+
+use crate::math::{Vec2, Vec3};
+use crate::spectrum::Spectrum;
+pub use lambert::Lambert;
+
+/// Which quantity is transported along the path.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum TransportMode {
+    /// Radiance, paths traced from the camera.
+    #[default]
+    Radiance,
+    /// Importance (power), paths traced from the light sources.
+    Importance,
+}
+
+/// Lobe flags of a sample or a model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct BxdfFlags {
+    /// Reflection lobe present / sampled.
+    pub reflection: bool,
+    /// Transmission lobe present / sampled.
+    pub transmission: bool,
+    /// Dirac delta (specular): eval/pdf are zero, only `sample` produces it.
+    pub specular: bool,
+}
+
+/// Result of [`Bxdf::sample`].
+#[derive(Clone, Copy, Debug)]
+pub struct BsdfSample {
+    /// Sampled direction (local frame, away from the surface).
+    pub wi: Vec3,
+    /// f(wo, wi) without the cosine (for specular lobes: the delta's weight divided by |cos θi|).
+    pub f: Spectrum,
+    /// Solid-angle pdf of `wi` (for specular lobes: the discrete probability of the lobe).
+    pub pdf: f32,
+    /// Which lobe was sampled.
+    pub flags: BxdfFlags,
+    /// Relative index of refraction crossed (1 for reflection).
+    pub eta: f32,
+}
+
+impl BsdfSample {
+    /// Throughput weight f·|cos θi| / pdf.
+    #[inline]
+    pub fn weight(&self) -> Spectrum {
+        if self.pdf > 0.0 { self.f * (self.wi.z.abs() / self.pdf) } else { Spectrum::ZERO }
+    }
+}
+
+/// A scattering model in the local shading frame.
+pub trait Bxdf {
+    /// f(wo, wi) without the cosine factor.
+    fn eval(&self, wo: Vec3, wi: Vec3, mode: TransportMode) -> Spectrum;
+    /// Solid-angle density with which [`Bxdf::sample`] produces `wi` given `wo`.
+    fn pdf(&self, wo: Vec3, wi: Vec3, mode: TransportMode) -> f32;
+    /// Draws `wi` given `wo`; `uc` selects among lobes, `u` warps the direction.
+    fn sample(&self, wo: Vec3, uc: f32, u: Vec2, mode: TransportMode) -> Option<BsdfSample>;
+    /// Which lobes the model has.
+    fn flags(&self) -> BxdfFlags;
+}
+
+/// The runtime set of models.
+#[derive(Clone, Debug)]
+pub enum Bxdfs {
+    /// One-sided Lambertian reflector (Mitsuba `diffuse`).
+    Lambert(Lambert),
+}
+
+macro_rules! dispatch {
+    ($self:ident, $b:ident => $e:expr) => {
+        match $self {
+            Bxdfs::Lambert($b) => $e,
+        }
+    };
+}
+
+impl Bxdf for Bxdfs {
+    #[inline]
+    fn eval(&self, wo: Vec3, wi: Vec3, mode: TransportMode) -> Spectrum {
+        dispatch!(self, b => b.eval(wo, wi, mode))
+    }
+    #[inline]
+    fn pdf(&self, wo: Vec3, wi: Vec3, mode: TransportMode) -> f32 {
+        dispatch!(self, b => b.pdf(wo, wi, mode))
+    }
+    #[inline]
+    fn sample(&self, wo: Vec3, uc: f32, u: Vec2, mode: TransportMode) -> Option<BsdfSample> {
+        dispatch!(self, b => b.sample(wo, uc, u, mode))
+    }
+    #[inline]
+    fn flags(&self) -> BxdfFlags {
+        dispatch!(self, b => b.flags())
+    }
+}

@@ -1,0 +1,29 @@
+//! # Opal — forward light-transport engine
+//!
+//! The engine under Opal's three inverse methods (rough-surface BSDF recovery, physically
+//! correct BRDFs, de-lighting). Conventions are written out in `docs/conventions.md`:
+//! radians inside, degrees only at I/O; f32 for geometry and per-sample values, f64 for
+//! accumulators, quadrature and statistics; a plain `pdf` is per unit solid angle.
+//!
+//! Modules:
+//! * [`math`] — vectors (glam), orthonormal frames, reflection/refraction, Fresnel.
+//! * [`spectrum`] — the RGB [`Spectrum`](spectrum::Spectrum) newtype every colour goes through.
+//! * [`sampling`] — counter-based random numbers and warping functions with their pdfs.
+//! * [`bsdf`] — the [`Bxdf`](bsdf::Bxdf) contract, [`TransportMode`](bsdf::TransportMode) and models.
+//! * [`validate`] — χ² goodness-of-fit, quadrature helpers (product code: tests and CLI use it).
+//! * [`error`] — the library error type.
+#![warn(missing_docs)]
+
+pub mod accel;
+pub mod bsdf;
+pub mod error;
+pub mod geometry;
+pub mod image;
+pub mod math;
+pub mod sampling;
+pub mod scene;
+pub mod spectrum;
+pub mod validate;
+
+pub use error::{Error, Result};
+pub use spectrum::Spectrum;

@@ -1,0 +1,96 @@
+//! Piecewise-constant discrete / 1D distribution (cdf inversion), used for light selection
+//! proportional to power and triangle selection proportional to area.
+
+/// Discrete distribution over `n` items with weights `w_i ≥ 0`.
+#[derive(Clone, Debug)]
+pub struct Distribution1D {
+    cdf: Vec<f64>,
+    total: f64,
+}
+
+impl Distribution1D {
+    /// Build from non-negative weights; `None` if the weights are empty, negative, non-finite or
+    /// sum to zero.
+    pub fn new(weights: &[f64]) -> Option<Self> {
+        if weights.is_empty() || weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
+            return None;
+        }
+        let mut cdf = Vec::with_capacity(weights.len() + 1);
+        cdf.push(0.0);
+        let mut acc = 0.0;
+        for w in weights {
+            acc += w;
+            cdf.push(acc);
+        }
+        if acc <= 0.0 {
+            return None;
+        }
+        for c in &mut cdf {
+            *c /= acc;
+        }
+        Some(Distribution1D { cdf, total: acc })
+    }
+    /// Number of items.
+    pub fn len(&self) -> usize {
+        self.cdf.len() - 1
+    }
+    /// Always false (construction refuses empty input).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Sum of the weights.
+    pub fn total(&self) -> f64 {
+        self.total
+    }
+    /// Probability of item `i`.
+    pub fn pmf(&self, i: usize) -> f64 {
+        self.cdf[i + 1] - self.cdf[i]
+    }
+    /// Sample an item with `u ∈ [0,1)`; returns (index, pmf, u re-scaled to [0,1) within the item).
+    pub fn sample(&self, u: f32) -> (usize, f64, f32) {
+        let u = u as f64;
+        // first index with cdf[i+1] > u
+        let mut i = self.cdf.partition_point(|&c| c <= u).saturating_sub(1);
+        i = i.min(self.len() - 1);
+        // skip zero-probability items that the search may land on at their boundary
+        while self.pmf(i) == 0.0 && i + 1 < self.len() {
+            i += 1;
+        }
+        let p = self.pmf(i);
+        let du = if p > 0.0 { ((u - self.cdf[i]) / p).clamp(0.0, 1.0 - 1e-7) } else { 0.0 };
+        (i, p, du as f32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Rng;
+
+    #[test]
+    fn chi2_proportional_to_weights() {
+        let w = [1.0, 0.0, 3.0, 0.5, 5.5];
+        let d = Distribution1D::new(&w).unwrap();
+        let n = 500_000;
+        let mut counts = [0u64; 5];
+        let mut rng = Rng::new(11, 0, 0);
+        for _ in 0..n {
+            let (i, p, du) = d.sample(rng.next_f32());
+            assert!((0.0..1.0).contains(&du));
+            assert!((p - w[i] / 10.0).abs() < 1e-12);
+            counts[i] += 1;
+        }
+        assert_eq!(counts[1], 0);
+        let chi2: f64 = [0, 2, 3, 4]
+            .iter()
+            .map(|&i| {
+                let e = n as f64 * w[i] / 10.0;
+                (counts[i] as f64 - e).powi(2) / e
+            })
+            .sum();
+        // 3 dof, 0.999 quantile 16.27
+        assert!(chi2 < 16.27, "chi2 {chi2} {counts:?}");
+        assert!(Distribution1D::new(&[0.0, 0.0]).is_none());
+        assert!(Distribution1D::new(&[1.0, -1.0]).is_none());
+    }
+}
