@@ -2,3 +2,6 @@
 //! directly, and the built scene the integrators render.
 
 pub mod desc;
+pub mod load;
+
+pub use load::load_mitsuba_xml;
