@@ -394,6 +394,7 @@ fn png_bytes(pixels: &[[u8; 3]], w: u32, h: u32) -> Vec<u8> {
 }
 
 #[test]
+#[allow(irrefutable_let_patterns)] // EmitterDesc has one variant today; more may come.
 fn materials_textures_refs_and_emitters() {
     let png = png_bytes(&[[0, 128, 255], [64, 64, 64]], 2, 1);
     let scene = scene_xml(
@@ -445,9 +446,9 @@ fn materials_textures_refs_and_emitters() {
     }
     assert_eq!(s.shapes[2].emitter.as_ref().unwrap().radiance, Spectrum::rgb(1.0, 2.0, 3.0));
     assert!(s.shapes[0].emitter.is_none());
-    let EmitterDesc::Point { position, intensity } = &s.emitters[0];
+    let EmitterDesc::Point { position, intensity } = &s.emitters[0] else { panic!() };
     assert_eq!((*position, *intensity), (Vec3::new(1.0, 2.0, 3.0), Spectrum::splat(5.0)));
-    let EmitterDesc::Point { position, intensity } = &s.emitters[1];
+    let EmitterDesc::Point { position, intensity } = &s.emitters[1] else { panic!() };
     assert_eq!((*position, *intensity), (Vec3::new(-1.0, 0.0, 0.0), Spectrum::ONE));
     let i = s.integrator.unwrap();
     assert_eq!((i.max_depth, i.rr_depth, i.hide_emitters), (-1, 5, true));
