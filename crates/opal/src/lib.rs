@@ -16,9 +16,11 @@
 
 pub mod accel;
 pub mod bsdf;
+pub mod camera;
 pub mod error;
 pub mod geometry;
 pub mod image;
+pub mod light;
 pub mod math;
 pub mod sampling;
 pub mod scene;
