@@ -20,6 +20,7 @@ pub mod camera;
 pub mod error;
 pub mod geometry;
 pub mod image;
+pub mod integrator;
 pub mod light;
 pub mod math;
 pub mod sampling;
