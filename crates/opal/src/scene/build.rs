@@ -3,7 +3,7 @@
 //! structure and the light sampler.
 
 use super::desc::{BsdfDesc, EmitterDesc, IntegratorDesc, SceneDesc, TextureDesc};
-use crate::accel::{BruteForce, Hit};
+use crate::accel::{Bvh, Hit};
 use crate::bsdf::{Bxdfs, Lambert};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -13,7 +13,7 @@ use crate::math::{Frame, Vec2, Vec3};
 use crate::spectrum::Spectrum;
 
 /// Acceleration structure used by scenes.
-pub type Accel = BruteForce;
+pub type Accel = Bvh;
 
 /// One shape of a built scene.
 #[derive(Clone, Debug)]
