@@ -46,7 +46,9 @@ pub struct RenderArgs {
 }
 
 fn parse_kv(s: &str) -> std::result::Result<(String, String), String> {
-    s.split_once('=').map(|(a, b)| (a.to_string(), b.to_string())).ok_or_else(|| format!("expected name=value, got '{s}'"))
+    s.split_once('=')
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+        .ok_or_else(|| format!("expected name=value, got '{s}'"))
 }
 
 /// Loads and builds a scene file.
@@ -95,13 +97,22 @@ pub fn check_camera_sees_something(scene: &Scene, cam: usize) -> Result<()> {
 }
 
 /// Writes the EXR (and optional PNG / stderr EXR) of a render atomically.
-pub fn write_outputs(out: &RenderOutput, exr: &Path, png: Option<&Path>, stderr: Option<&Path>) -> Result<()> {
+pub fn write_outputs(
+    out: &RenderOutput,
+    exr: &Path,
+    png: Option<&Path>,
+    stderr: Option<&Path>,
+) -> Result<()> {
     util::write_atomic(exr, |f| Ok(opal::image::write::write_exr(&out.image, std::io::BufWriter::new(f))?))?;
     if let Some(p) = png {
-        util::write_atomic(p, |f| Ok(opal::image::write::write_png_srgb(&out.image, 1.0, std::io::BufWriter::new(f))?))?;
+        util::write_atomic(p, |f| {
+            Ok(opal::image::write::write_png_srgb(&out.image, 1.0, std::io::BufWriter::new(f))?)
+        })?;
     }
     if let Some(p) = stderr {
-        util::write_atomic(p, |f| Ok(opal::image::write::write_exr(&out.stderr, std::io::BufWriter::new(f))?))?;
+        util::write_atomic(p, |f| {
+            Ok(opal::image::write::write_exr(&out.stderr, std::io::BufWriter::new(f))?)
+        })?;
     }
     Ok(())
 }
