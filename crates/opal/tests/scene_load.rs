@@ -681,3 +681,50 @@ fn error_misc_structure() {
     let (_, s) = err_body("<shape type=\"cube\"><rgb name=\"x\" value=\"1 2\"/></shape>");
     assert!(s.contains("<rgb> needs 3"), "{s}");
 }
+
+/// A binary PLY written by hand (big-endian doubles, a quad, ushort indices, an extra element)
+/// loads through the scene with its uvs unflipped and the quad fan-triangulated; a
+/// single-valued `spectrum` is a grey colour.
+#[test]
+fn binary_ply_and_spectrum_through_the_scene() {
+    let mut ply =
+        b"ply\nformat binary_big_endian 1.0\nelement vertex 4\nproperty double x\nproperty double y\n\
+property double z\nproperty float texture_u\nproperty float texture_v\nelement face 1\n\
+property list uchar ushort vertex_indices\nelement camera 1\nproperty float fov\nend_header\n"
+            .to_vec();
+    let verts = [[0.0f64, 0.0, 0.0], [2.0, 0.0, 0.0], [2.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+    let uvs = [[0.0f32, 0.0], [1.0, 0.0], [1.0, 0.5], [0.0, 0.5]];
+    for (p, t) in verts.iter().zip(uvs) {
+        for c in p {
+            ply.extend(c.to_be_bytes());
+        }
+        for c in t {
+            ply.extend(c.to_be_bytes());
+        }
+    }
+    ply.push(4);
+    for i in [0u16, 1, 2, 3] {
+        ply.extend(i.to_be_bytes());
+    }
+    ply.extend(45f32.to_be_bytes());
+    let scene = scene_xml(
+        r#"<shape type="ply"><string name="filename" value="q.ply"/>
+        <bsdf type="diffuse"><spectrum name="reflectance" value="0.25"/></bsdf></shape>"#,
+    );
+    let (_d, r) = load_inline(&[("scene.xml", scene.as_bytes()), ("q.ply", &ply)], &[]);
+    let s = r.unwrap();
+    let m = &s.shapes[0].mesh;
+    assert_eq!(m.indices, vec![[0, 1, 2], [0, 2, 3]]);
+    assert_eq!(m.positions[2], Vec3::new(2.0, 1.0, 0.0));
+    assert_eq!(m.uvs[2], Vec2::new(1.0, 0.5));
+    assert!((m.area() - 2.0).abs() < 1e-6);
+    // No normals in the file, face_normals false ⇒ recomputed, +z.
+    assert!(m.normals.iter().all(|n| close(*n, Vec3::Z, 1e-6)));
+    assert!(
+        matches!(&s.shapes[0].bsdf, BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(c) } if *c == Spectrum::splat(0.25))
+    );
+    let (_, s) = err_body(
+        r#"<shape type="cube"><bsdf type="diffuse"><spectrum name="reflectance" value="400:0.1, 700:0.5"/></bsdf></shape>"#,
+    );
+    assert!(s.contains("scene.xml:2:") && s.contains("RGB renderer"), "{s}");
+}

@@ -8,8 +8,8 @@
 //!   the scene asks for `raw` data (Mitsuba's `bitmap` semantics).
 //! * EXR colour is read **by channel name** (`R`, `G`, `B`; a lone `Y` gives grey), never by
 //!   position: OpenEXR stores channels sorted by name.
-//! * [`read_exr_channels`] reads every channel of an EXR file under its full name (layer name
-//!   prefixed with a dot when the file has named layers), e.g. Mitsuba AOV files with
+//! * [`read_exr_channels`] reads every channel of an EXR file under its full name (in
+//!   multi-part files the part name is prefixed with a dot), e.g. Mitsuba AOV files with
 //!   `albedo.R`, `depth.T`, `position.X`.
 //!
 //! Row 0 is the top row of the image, as in [`Image`]. Tests: unit tests below (PNG 8/16-bit
@@ -84,7 +84,7 @@ fn read_with_image_crate(path: &Path) -> Result<Image> {
 
 /// Reads every channel of the first (or only) layers of an EXR file: `(width, height,
 /// channels)`, each channel `width * height` values, row 0 at the top. Channel names are the
-/// file's names (`albedo.R`); in multi-part files with named layers, `layer.channel`.
+/// file's names (`albedo.R`); in multi-part files with named parts, `part.channel`.
 pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, Vec<f32>>)> {
     use exr::prelude::*;
     if !path.exists() {
@@ -112,7 +112,12 @@ pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, 
             }
             _ => {}
         }
-        let prefix = layer.attributes.layer_name.as_ref().map(|n| n.to_string());
+        // Layer names only disambiguate multi-part files; a single part keeps its channel names.
+        let prefix = if img.layer_data.len() > 1 {
+            layer.attributes.layer_name.as_ref().map(|n| n.to_string())
+        } else {
+            None
+        };
         for ch in &layer.channel_data.list {
             let name = match &prefix {
                 Some(p) if !p.is_empty() => format!("{p}.{}", ch.name),
@@ -182,6 +187,83 @@ mod tests {
         img16.save(&p16).unwrap();
         let i = read_image(&p16).unwrap();
         assert_eq!(i.get(1, 1), Spectrum::splat(3000.0 / 65535.0));
+    }
+
+    fn write_exr(path: &Path, layers: Vec<(Option<&str>, Vec<(&str, Vec<f32>)>)>, w: usize, h: usize) {
+        use exr::prelude::*;
+        let mut parts: Layers<AnyChannels<FlatSamples>> = Default::default();
+        for (name, chans) in layers {
+            let list = chans
+                .into_iter()
+                .map(|(n, v)| {
+                    // Store Y as f16 to exercise sample-type conversion.
+                    let samples = if n == "Y" {
+                        FlatSamples::F16(v.into_iter().map(f16::from_f32).collect())
+                    } else {
+                        FlatSamples::F32(v)
+                    };
+                    AnyChannel::new(n, samples)
+                })
+                .collect();
+            let attrs = name.map_or_else(LayerAttributes::default, LayerAttributes::named);
+            parts.push(Layer::new((w, h), attrs, Encoding::FAST_LOSSLESS, AnyChannels::sort(list)));
+        }
+        let img = Image::from_layers(ImageAttributes::new(IntegerBounds::from_dimensions((w, h))), parts);
+        img.write().to_file(path).unwrap();
+    }
+
+    #[test]
+    fn exr_grey_named_channels_and_parts() {
+        let d = tempfile::tempdir().unwrap();
+        // Y only (f16) → grey; 3×2, non-square.
+        let p = d.path().join("y.exr");
+        write_exr(&p, vec![(None, vec![("Y", vec![0.0, 0.5, 1.0, 2.0, 4.0, 8.0])])], 3, 2);
+        let i = read_image(&p).unwrap();
+        assert_eq!((i.width, i.height), (3, 2));
+        assert_eq!(i.get(2, 1), Spectrum::splat(8.0));
+        assert_eq!(i.get(1, 0), Spectrum::splat(0.5));
+        // RGBA written in any order is read by name; A ignored.
+        let p = d.path().join("rgba.exr");
+        let ramp = |k: f32| (0..4).map(|i| k + i as f32).collect::<Vec<f32>>();
+        write_exr(
+            &p,
+            vec![(
+                Some("beauty"),
+                vec![("A", ramp(9.0)), ("B", ramp(3.0)), ("G", ramp(2.0)), ("R", ramp(1.0))],
+            )],
+            2,
+            2,
+        );
+        let i = read_image(&p).unwrap();
+        assert_eq!(i.get(1, 1), Spectrum::rgb(4.0, 5.0, 6.0));
+        // AOV-style channel names; a single named part does not prefix them.
+        let p = d.path().join("aov.exr");
+        write_exr(&p, vec![(Some("aovs"), vec![("albedo.R", ramp(0.0)), ("depth.T", ramp(10.0))])], 2, 2);
+        let (w, h, ch) = read_exr_channels(&p).unwrap();
+        assert_eq!((w, h), (2, 2));
+        assert_eq!(ch.keys().collect::<Vec<_>>(), ["albedo.R", "depth.T"]);
+        assert_eq!(ch["depth.T"], vec![10.0, 11.0, 12.0, 13.0]);
+        let e = read_image(&p).unwrap_err().to_string();
+        assert!(e.contains("aov.exr") && e.contains("albedo.R, depth.T"), "{e}");
+        // Two parts: names prefixed by the part name.
+        let p = d.path().join("parts.exr");
+        write_exr(&p, vec![(Some("a"), vec![("Z", ramp(0.0))]), (Some("b"), vec![("Z", ramp(1.0))])], 2, 2);
+        let (_, _, ch) = read_exr_channels(&p).unwrap();
+        assert_eq!(ch.keys().collect::<Vec<_>>(), ["a.Z", "b.Z"]);
+    }
+
+    #[test]
+    fn radiance_hdr_is_linear() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("x.hdr");
+        // Powers of two are exact in RGBE.
+        let img =
+            image::Rgb32FImage::from_fn(2, 3, |x, y| image::Rgb([x as f32 + 1.0, 0.25 * y as f32, 16.0]));
+        image::DynamicImage::ImageRgb32F(img).save(&p).unwrap();
+        let dec = read_image_decoded(&p).unwrap();
+        assert!(!dec.srgb_encoded);
+        assert_eq!((dec.image.width, dec.image.height), (2, 3));
+        assert_eq!(dec.image.get(1, 2), Spectrum::rgb(2.0, 0.5, 16.0));
     }
 
     #[test]
