@@ -189,7 +189,10 @@ mod tests {
         assert_eq!(i.get(1, 1), Spectrum::splat(3000.0 / 65535.0));
     }
 
-    fn write_exr(path: &Path, layers: Vec<(Option<&str>, Vec<(&str, Vec<f32>)>)>, w: usize, h: usize) {
+    /// One EXR part: optional name, channels (name, samples).
+    type Part<'a> = (Option<&'a str>, Vec<(&'a str, Vec<f32>)>);
+
+    fn write_exr(path: &Path, layers: Vec<Part>, w: usize, h: usize) {
         use exr::prelude::*;
         let mut parts: Layers<AnyChannels<FlatSamples>> = Default::default();
         for (name, chans) in layers {
