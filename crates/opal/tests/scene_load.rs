@@ -728,3 +728,66 @@ property list uchar ushort vertex_indices\nelement camera 1\nproperty float fov\
     );
     assert!(s.contains("scene.xml:2:") && s.contains("RGB renderer"), "{s}");
 }
+
+/// A scene written the way Mitsuba's example Cornell box is (defaults substituted into a plugin
+/// `type`, rectangles placed by 16-number matrices with 3-digit exponents, `ref`s to top-level
+/// two-sided BSDFs, `file_format`), with a box film filter — a tent filter is rejected.
+#[test]
+fn mitsuba_style_cornell_box() {
+    let body = |filter: &str| {
+        format!(
+            r#"<scene version="3.0.0">
+    <default name="integrator" value="path"/>
+    <default name="spp" value="64"/>
+    <default name="max_depth" value="6"/>
+    <integrator type="$integrator"><integer name="max_depth" value="$max_depth"/></integrator>
+    <sensor type="perspective">
+        <float name="fov" value="19.5"/>
+        <transform name="to_world"><matrix value="-1 0 0 0 0 1 0 1 0 0 -1 6.8 0 0 0 1"/></transform>
+        <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
+        <film type="hdrfilm">
+            <integer name="width" value="1024"/><integer name="height" value="1024"/>
+            <string name="file_format" value="openexr"/><string name="pixel_format" value="rgb"/>
+            <rfilter type="{filter}"/>
+        </film>
+    </sensor>
+    <bsdf type="twosided" id="FloorBSDF"><bsdf type="diffuse"><rgb name="reflectance" value="0.725, 0.71, 0.68"/></bsdf></bsdf>
+    <bsdf type="twosided" id="LightBSDF"><bsdf type="diffuse"><rgb name="reflectance" value="0, 0, 0"/></bsdf></bsdf>
+    <shape type="rectangle" id="Floor">
+        <transform name="to_world">
+            <matrix value="-4.37114e-008 1 4.37114e-008 0 0 -8.74228e-008 2 0 1 4.37114e-008 1.91069e-015 0 0 0 0 1"/>
+        </transform>
+        <ref id="FloorBSDF"/>
+    </shape>
+    <shape type="rectangle" id="Light">
+        <transform name="to_world">
+            <matrix value="0.235 0 0 -0.005  0 0 -1 1.98  0 0.18 0 -0.03  0 0 0 1"/>
+        </transform>
+        <ref id="LightBSDF"/>
+        <emitter type="area"><rgb name="radiance" value="17, 12, 4"/></emitter>
+    </shape>
+</scene>"#
+        )
+    };
+    let (_d, r) = load_inline(&[("scene.xml", body("box").as_bytes())], &[]);
+    let s = r.unwrap();
+    assert_eq!(s.integrator.unwrap().max_depth, 6);
+    assert_eq!(s.sensors[0].spp, Some(64));
+    assert_eq!(s.shapes.len(), 2);
+    assert!(matches!(&s.shapes[0].bsdf, BsdfDesc::TwoSided(_)));
+    // Floor: rectangle mapped to y = 0 (up), 2×2 → area 4 (x ∈ [-1,1], z ∈ [-1,1]).
+    let f = &s.shapes[0].mesh;
+    assert!((f.area() - 4.0).abs() < 1e-4, "{}", f.area());
+    assert!(f.positions.iter().all(|p| p.y.abs() < 1e-6));
+    assert!(close(f.normals[0], Vec3::Y, 1e-6));
+    // Light: columns (0.235,0,0), (0,0,0.18) → 0.47 × 0.36 quad at y = 1.98 facing
+    // (1,0,0) × (0,0,1) = -y.
+    let l = &s.shapes[1].mesh;
+    assert!((l.area() - 0.47 * 0.36).abs() < 1e-5, "{}", l.area());
+    let [a, b, c] = l.triangle(0);
+    assert!(close((b - a).cross(c - a).normalize(), Vec3::NEG_Y, 1e-5));
+    assert_eq!(s.shapes[1].emitter.as_ref().unwrap().radiance, Spectrum::rgb(17.0, 12.0, 4.0));
+    let (_d, r) = load_inline(&[("scene.xml", body("tent").as_bytes())], &[]);
+    let e = r.unwrap_err().to_string();
+    assert!(e.contains("scene.xml:13:") && e.contains("rfilter type=\"tent\" is not supported"), "{e}");
+}

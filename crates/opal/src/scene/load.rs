@@ -1023,8 +1023,15 @@ impl Loader {
                         }
                     }
                 }
+                if let Some((f, l)) = p.string_at("file_format")? {
+                    if !f.eq_ignore_ascii_case("openexr") && !f.eq_ignore_ascii_case("exr") {
+                        return Err(l.err(format!("film file_format \"{f}\" is not supported (openexr)")));
+                    }
+                }
                 let has_rfilter = p.object("rfilter")?.is_some();
-                p.finish("width, height, pixel_format, component_format, a nested <rfilter type=\"box\">")?;
+                p.finish(
+                    "width, height, file_format, pixel_format, component_format, a nested <rfilter type=\"box\">",
+                )?;
                 Object::Film(FilmDesc { width: size[0], height: size[1], has_rfilter })
             }
             ("sampler", "independent") => {
