@@ -11,7 +11,9 @@
 //!   of an image (Mitsuba's internal uv convention).
 //! * Validation with the file's line and column: non-finite or malformed `v`/`vn`/`vt`
 //!   values, face indices that are zero or out of range, faces with fewer than three
-//!   vertices, and files where only some faces carry `vt`/`vn` are [`Error::Parse`].
+//!   vertices, and files where only some faces carry `vt`/`vn` are [`Error::Parse`]. `tobj`
+//!   parses first; the slower line-by-line check that finds the position runs only when
+//!   `tobj` fails or returns non-finite values (loading stays at `tobj`'s speed).
 //!
 //! The returned mesh is in object space; transforms, degenerate-triangle removal and
 //! normal recomputation happen in the scene loader. Tests: unit tests below and
@@ -105,7 +107,6 @@ fn tokens_with_cols(s: &str) -> impl Iterator<Item = (&str, usize)> {
 /// Reads an OBJ file into an object-space triangle mesh (see the module docs).
 pub fn read_obj(path: &Path, flip_tex_coords: bool) -> Result<TriangleMesh> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    prescan(path, &text)?;
     // `..Default::default()` is needed when tobj's optional `merging`/`reordering` features
     // (which add fields) get enabled elsewhere in the dependency graph.
     #[allow(clippy::needless_update)]
@@ -116,10 +117,31 @@ pub fn read_obj(path: &Path, flip_tex_coords: bool) -> Result<TriangleMesh> {
         ignore_lines: true,
         ..Default::default()
     };
-    let mut reader = std::io::BufReader::new(text.as_bytes());
+    // Strip `#` comments (tobj would read a trailing comment on a `v` line as colours).
+    let mut cleaned = String::with_capacity(text.len());
+    for line in text.lines() {
+        cleaned.push_str(line.split('#').next().unwrap_or(""));
+        cleaned.push('\n');
+    }
+    let mut reader = std::io::BufReader::new(cleaned.as_bytes());
+    // Fast path: tobj parses; the line-by-line `prescan` (which locates problems by line and
+    // column) runs only when tobj fails or the result holds non-finite values.
     let (models, _materials) =
-        tobj::load_obj_buf(&mut reader, &opts, |_| Err(tobj::LoadError::GenericFailure))
-            .map_err(|e| perr(path, 0, 0, format!("OBJ: {e}")))?;
+        match tobj::load_obj_buf(&mut reader, &opts, |_| Err(tobj::LoadError::GenericFailure)) {
+            Ok(r) => r,
+            Err(e) => {
+                prescan(path, &text)?;
+                return Err(perr(path, 0, 0, format!("OBJ: {e}")));
+            }
+        };
+    let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+    if !models
+        .iter()
+        .all(|m| finite(&m.mesh.positions) && finite(&m.mesh.normals) && finite(&m.mesh.texcoords))
+    {
+        prescan(path, &text)?;
+        return Err(perr(path, 0, 0, "non-finite vertex data"));
+    }
     let mut mesh = TriangleMesh::default();
     let (mut with_n, mut with_uv, mut total) = (0usize, 0usize, 0usize);
     for m in &models {
@@ -207,6 +229,22 @@ mod tests {
         let m = read_obj(&p, true).unwrap();
         assert_eq!(m.positions.len(), 4);
         assert!(m.normals.is_empty());
+    }
+
+    #[test]
+    fn crlf_tabs_comments_and_position_normal_faces() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(
+            d.path(),
+            "crlf.obj",
+            "# comment\r\nmtllib none.mtl\r\no a\r\nv\t0 0 0\r\nv 1 0 0 # trailing\r\nv 0 1 0\r\nvn 0 0 1\r\n\
+             g b\r\nusemtl m\r\nf 1//1 2//1 3//1\r\n",
+        );
+        let m = read_obj(&p, true).unwrap();
+        assert_eq!(m.indices.len(), 1);
+        assert_eq!(m.normals, vec![Vec3::Z; 3]);
+        assert!(m.uvs.is_empty());
+        assert_eq!(m.positions[1], Vec3::X);
     }
 
     #[test]
