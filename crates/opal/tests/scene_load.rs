@@ -548,6 +548,12 @@ fn error_unknown_plugin_types() {
     assert!(s.contains("diffuse, twosided"), "{s}");
     let (_, s) = err_body("<emitter type=\"envmap\"><string name=\"filename\" value=\"x.exr\"/></emitter>");
     assert!(s.contains("scene.xml:2:") && s.contains("emitter type=\"envmap\""), "{s}");
+    // The unsupported plugin is reported before its (here broken) children are read.
+    let (_, s) = err_body(
+        "<bsdf type=\"roughplastic\" id=\"rp\"><texture type=\"bitmap\" name=\"diffuse_reflectance\">\
+         <string name=\"filename\" value=\"missing.png\"/></texture></bsdf>",
+    );
+    assert!(s.contains("roughplastic") && !s.contains("missing.png"), "{s}");
     let (_, s) = err_body("<medium type=\"homogeneous\"/>");
     assert!(s.contains("scene.xml:2:") && s.contains("medium"), "{s}");
     let (_, s) = err_body("<shape type=\"cube\"><foo/></shape>");

@@ -39,7 +39,9 @@ pub const SPHERE_SEGMENTS_THETA: usize = 64;
 /// Deepest `include` nesting accepted.
 const MAX_INCLUDE_DEPTH: usize = 32;
 
-/// Mitsuba plugins Opal understands: `(tag, types)`. Any other `type` is an error.
+/// Mitsuba plugins Opal understands: `(tag, types)`. Any other `type` is an error, reported
+/// before the element's children are read. Adding a plugin = one arm in
+/// `Loader::instantiate` + its name here (a unit test checks the two agree).
 pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
     ("shape", &["obj", "ply", "rectangle", "cube", "sphere"]),
     ("bsdf", &["diffuse", "twosided"]),
@@ -930,6 +932,10 @@ impl Loader {
         e.check_attrs(&["type", "id", "name"])?;
         let ty = e.req("type")?.value.clone();
         let tag = e.tag.clone();
+        // Reject unsupported plugins before reading (possibly failing) nested objects.
+        if !SUPPORTED_PLUGINS.iter().any(|(t, types)| *t == tag && types.contains(&ty.as_str())) {
+            return Err(unsupported(&tag, &ty, e));
+        }
         let mut p = self.props(e, e.describe())?;
         let obj = match (tag.as_str(), ty.as_str()) {
             ("bsdf", "diffuse") => {
@@ -1413,6 +1419,32 @@ mod tests {
         let rel_v = 1.0 - vol / (4.0 / 3.0 * std::f64::consts::PI);
         // Volume deficit 0.100 % (f64 computation of the same polyhedron).
         assert!(rel_v > 8e-4 && rel_v < 1.2e-3, "volume deficit {rel_v}");
+    }
+
+    /// Every (tag, type) of [`SUPPORTED_PLUGINS`] has a dispatch arm: instantiating a bare
+    /// element may fail for missing parameters, never as "not supported".
+    #[test]
+    fn supported_table_matches_dispatch() {
+        let dir = tempfile::tempdir().unwrap();
+        for (tag, types) in SUPPORTED_PLUGINS {
+            for ty in *types {
+                let p = dir.path().join("s.xml");
+                std::fs::write(&p, format!("<scene version=\"3.0.0\"><{tag} type=\"{ty}\"/></scene>"))
+                    .unwrap();
+                let mut r = XmlReader { params: HashMap::new(), stack: Vec::new() };
+                let root = r.parse_file(&p, &[], None).unwrap();
+                let mut l = Loader {
+                    named: HashMap::new(),
+                    ids: HashSet::new(),
+                    warnings: Vec::new(),
+                    n_shapes: 0,
+                    n_sensors: 0,
+                };
+                if let Err(e) = l.instantiate(&root.children[0]) {
+                    assert!(!e.to_string().contains("not supported"), "{tag} {ty}: {e}");
+                }
+            }
+        }
     }
 
     #[test]
