@@ -570,6 +570,11 @@ fn error_unknown_parameter_and_attribute() {
         s.contains("unknown parameter `foo`") && s.contains("diffuse") && s.contains("reflectance"),
         "{s}"
     );
+    // Parameters are checked before the mesh file is opened.
+    let (_, s) = err_body(
+        "<shape type=\"obj\"><string name=\"filename\" value=\"absent.obj\"/><float name=\"scale\" value=\"2\"/></shape>",
+    );
+    assert!(s.contains("unknown parameter `scale`") && s.contains("flip_tex_coords"), "{s}");
     let (_, s) = err_body("<shape type=\"sphere\"><float name=\"radius\" value=\"1\" unit=\"m\"/></shape>");
     assert!(s.contains("scene.xml:2:") && s.contains("unknown attribute `unit`"), "{s}");
     let (_, s) = err_body("<shape type=\"sphere\"><string name=\"radius\" value=\"1\"/></shape>");

@@ -1142,26 +1142,30 @@ impl Loader {
         let flip_normals = p.bool("flip_normals")?.unwrap_or(false);
         let mut face_normals = false;
         let mut supported = "to_world, flip_normals, a nested <bsdf>, a nested <emitter type=\"area\">";
-        let (mesh, local) = match ty {
+        // Read every parameter first (so unknown ones fail before any file I/O), then load.
+        enum Source {
+            Obj(PathBuf, Loc, bool),
+            Ply(PathBuf, Loc),
+            Mesh(TriangleMesh, DMat4),
+        }
+        let source = match ty {
             "obj" | "ply" => {
                 let (fname, floc) = p
                     .string_at("filename")?
                     .ok_or_else(|| e.loc.err(format!("{what}: `filename` is required")))?;
                 face_normals = p.bool("face_normals")?.unwrap_or(false);
                 let path = e.resolve(&fname);
-                let mesh = if ty == "obj" {
+                if ty == "obj" {
                     let flip_tc = p.bool("flip_tex_coords")?.unwrap_or(true);
                     supported = "filename, face_normals, flip_tex_coords, to_world, flip_normals, a nested <bsdf>, a nested <emitter type=\"area\">";
-                    crate::geometry::obj::read_obj(&path, flip_tc)
+                    Source::Obj(path, floc, flip_tc)
                 } else {
                     supported = "filename, face_normals, to_world, flip_normals, a nested <bsdf>, a nested <emitter type=\"area\">";
-                    crate::geometry::ply::read_ply(&path)
+                    Source::Ply(path, floc)
                 }
-                .map_err(|err| floc.err(format!("{what}: {err}")))?;
-                (mesh, DMat4::IDENTITY)
             }
-            "rectangle" => (rectangle_mesh(), DMat4::IDENTITY),
-            "cube" => (cube_mesh(), DMat4::IDENTITY),
+            "rectangle" => Source::Mesh(rectangle_mesh(), DMat4::IDENTITY),
+            "cube" => Source::Mesh(cube_mesh(), DMat4::IDENTITY),
             "sphere" => {
                 let center = p.point("center")?.unwrap_or(DVec3::ZERO);
                 let radius = match p.float_at("radius")? {
@@ -1174,7 +1178,7 @@ impl Loader {
                     }
                 };
                 supported = "center, radius, to_world, flip_normals, a nested <bsdf>, a nested <emitter type=\"area\">";
-                (
+                Source::Mesh(
                     sphere_mesh(SPHERE_SEGMENTS_PHI, SPHERE_SEGMENTS_THETA),
                     DMat4::from_translation(center) * DMat4::from_scale(DVec3::splat(radius)),
                 )
@@ -1197,6 +1201,18 @@ impl Loader {
         };
         std::mem::replace(p, Props { what: String::new(), params: Vec::new(), objects: Vec::new() })
             .finish(supported)?;
+        let (mesh, local) = match source {
+            Source::Obj(path, floc, flip_tc) => (
+                crate::geometry::obj::read_obj(&path, flip_tc)
+                    .map_err(|err| floc.err(format!("{what}: {err}")))?,
+                DMat4::IDENTITY,
+            ),
+            Source::Ply(path, floc) => (
+                crate::geometry::ply::read_ply(&path).map_err(|err| floc.err(format!("{what}: {err}")))?,
+                DMat4::IDENTITY,
+            ),
+            Source::Mesh(m, local) => (m, local),
+        };
         let (mesh, dropped) =
             finalize_mesh(mesh, to_world * local, flip_normals, face_normals, &e.loc, &what)?;
         let id = e.attr("id").map_or_else(|| format!("shape_{}", self.n_shapes), |a| a.value.clone());
