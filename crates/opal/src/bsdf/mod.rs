@@ -11,6 +11,7 @@
 //! Models: [`lambert`]. Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
 
 pub mod lambert;
+pub mod microfacet;
 
 use crate::math::{Vec2, Vec3};
 use crate::spectrum::Spectrum;
