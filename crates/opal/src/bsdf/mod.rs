@@ -12,10 +12,12 @@
 
 pub mod lambert;
 pub mod microfacet;
+pub mod rough_dielectric;
 
 use crate::math::{Vec2, Vec3};
 use crate::spectrum::Spectrum;
 pub use lambert::Lambert;
+pub use rough_dielectric::RoughDielectric;
 
 /// Which quantity is transported along the path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -78,12 +80,15 @@ pub trait Bxdf {
 pub enum Bxdfs {
     /// One-sided Lambertian reflector (Mitsuba `diffuse`).
     Lambert(Lambert),
+    /// Rough dielectric interface, single scattering (Walter et al. 2007), any NDF.
+    RoughDielectric(RoughDielectric),
 }
 
 macro_rules! dispatch {
     ($self:ident, $b:ident => $e:expr) => {
         match $self {
             Bxdfs::Lambert($b) => $e,
+            Bxdfs::RoughDielectric($b) => $e,
         }
     };
 }
