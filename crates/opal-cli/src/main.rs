@@ -4,6 +4,9 @@
 //! 2 usage / I-O / bad input. Errors print `error: {cause chain}`.
 
 mod cmd;
+#[allow(dead_code)]
+mod plot;
+#[allow(dead_code)]
 mod util;
 
 use clap::{Parser, Subcommand};

@@ -16,9 +16,12 @@
 
 pub mod accel;
 pub mod bsdf;
+pub mod camera;
 pub mod error;
 pub mod geometry;
 pub mod image;
+pub mod integrator;
+pub mod light;
 pub mod math;
 pub mod sampling;
 pub mod scene;

@@ -1,5 +1,7 @@
 //! Floating-point RGB images (films, textures, reference renders).
 
+pub mod write;
+
 use crate::spectrum::Spectrum;
 
 /// Linear RGB float image, row-major, row 0 at the top.

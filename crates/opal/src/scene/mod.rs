@@ -1,4 +1,7 @@
 //! Scenes: a serde description ([`desc`]) that loaders produce and tests/inverse code can build
 //! directly, and the built scene the integrators render.
 
+pub mod build;
 pub mod desc;
+
+pub use build::{Scene, SurfaceInteraction};
