@@ -26,6 +26,8 @@ struct Cli {
 enum Command {
     /// Run every workflow on data shipped with Opal and write results to `opal-demo/`.
     Demo(cmd::demo::DemoArgs),
+    /// Virtual goniophotometer: plate with polished/rough faces, beam, detectors.
+    Gonio(cmd::gonio::GonioArgs),
 }
 
 fn main() {
@@ -33,6 +35,7 @@ fn main() {
     util::set_quiet(cli.quiet);
     let result = match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
+        Command::Gonio(a) => cmd::gonio::run(a),
     };
     match result {
         Ok(code) => std::process::exit(code),

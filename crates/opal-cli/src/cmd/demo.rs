@@ -15,5 +15,6 @@ pub struct DemoArgs {
 /// Runs the demo; returns the exit code.
 pub fn run(args: DemoArgs) -> Result<i32> {
     std::fs::create_dir_all(&args.output)?;
+    let _gonio = super::gonio::demo(&args.output)?;
     Ok(0)
 }

@@ -13,6 +13,7 @@
 pub mod lambert;
 pub mod microfacet;
 pub mod rough_dielectric;
+pub mod rough_dielectric_ms;
 
 use crate::math::{Vec2, Vec3};
 use crate::spectrum::Spectrum;
