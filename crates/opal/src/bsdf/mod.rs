@@ -11,10 +11,14 @@
 //! Models: [`lambert`]. Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
 
 pub mod lambert;
+pub mod microfacet;
+pub mod rough_dielectric;
+pub mod rough_dielectric_ms;
 
 use crate::math::{Vec2, Vec3};
 use crate::spectrum::Spectrum;
 pub use lambert::Lambert;
+pub use rough_dielectric::RoughDielectric;
 
 /// Which quantity is transported along the path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -77,12 +81,15 @@ pub trait Bxdf {
 pub enum Bxdfs {
     /// One-sided Lambertian reflector (Mitsuba `diffuse`).
     Lambert(Lambert),
+    /// Rough dielectric interface, single scattering (Walter et al. 2007), any NDF.
+    RoughDielectric(RoughDielectric),
 }
 
 macro_rules! dispatch {
     ($self:ident, $b:ident => $e:expr) => {
         match $self {
             Bxdfs::Lambert($b) => $e,
+            Bxdfs::RoughDielectric($b) => $e,
         }
     };
 }

@@ -1137,7 +1137,7 @@ impl Loader {
     }
 
     fn shape(&mut self, e: &Elem, ty: &str, p: &mut Props) -> Result<ShapeDesc> {
-        let what = e.describe();
+        let mut what = e.describe();
         let to_world = p.transform("to_world")?.map_or(DMat4::IDENTITY, |t| t.0);
         let flip_normals = p.bool("flip_normals")?.unwrap_or(false);
         let mut face_normals = false;
@@ -1155,6 +1155,7 @@ impl Loader {
                     .ok_or_else(|| e.loc.err(format!("{what}: `filename` is required")))?;
                 face_normals = p.bool("face_normals")?.unwrap_or(false);
                 let path = e.resolve(&fname);
+                what = format!("{what} ({})", path.display());
                 if ty == "obj" {
                     let flip_tc = p.bool("flip_tex_coords")?.unwrap_or(true);
                     supported = "filename, face_normals, flip_tex_coords, to_world, flip_normals, a nested <bsdf>, a nested <emitter type=\"area\">";
