@@ -3,15 +3,19 @@
 //! incidence): every case (GGX α = 0.15, 0.35, Beckmann α = 0.25; smooth and rough entry;
 //! incidences 0–75°).
 //!
-//! * Detectors: z = (ours − ref) / √(σ_ours² + σ_ref²) over the detectors whose reference value
-//!   exceeds 1e-3 sr⁻¹; ≥ 99 % of them must have |z| ≤ 3 (for unbiased Gaussian noise 99.7 %
-//!   would; the margin absorbs the noise of the standard-error estimates themselves on
-//!   detectors with few photons).
+//! * Detectors: z = (ours − ref) / σ over the detectors whose reference value exceeds
+//!   1e-3 sr⁻¹ and where our run expects ≥ 20 photons (below that the counts are Poisson, not
+//!   Gaussian, and a z-test is meaningless); σ² = σ_ref²·(1 + N_ref/N_ours) is the variance of
+//!   the difference under the null hypothesis (same per-photon variance in both simulations,
+//!   estimated from the 16 M-photon reference, which stays defined when our detector saw no
+//!   photon); ≥ 99 % of the detectors must have |z| ≤ 3 (99.7 % for Gaussian noise; the margin
+//!   covers the residual non-normality of counts of a few dozen photons).
 //! * Totals R, T and lost: |z| ≤ 4 with σ² = p(1−p)(1/N_ours + 1/N_ref), an upper bound of
 //!   the variance of a mean of weights in [0, 1].
 //!
-//! Default tier: 150 000 photons per incidence (~2 s on 2 cores). The heavy tier
-//! `cargo test -p opal --test gonio_reference -- --ignored` uses 4 M photons per incidence.
+//! Default tier: 400 000 photons per incidence (~10 s on 2 cores; compares the detectors
+//! around the peaks). The heavy tier `cargo test -p opal --release --test gonio_reference --
+//! --ignored` uses 16 M photons per incidence like the reference (all detectors > 1e-3).
 
 use opal::bsdf::microfacet::Ndfs;
 use opal::gonio::{Beam, DetectorGrid, DetectorLayout, Face, Gonio, GonioSetup, Plate, Scattering, Side};
@@ -25,6 +29,7 @@ fn data_dir() -> PathBuf {
 struct RefRow {
     value: f64,
     stderr: f64,
+    hits: f64,
 }
 
 fn read_csv(name: &str) -> HashMap<(i32, char, i32), RefRow> {
@@ -34,6 +39,7 @@ fn read_csv(name: &str) -> HashMap<(i32, char, i32), RefRow> {
     let col = |n: &str| header.iter().position(|h| *h == n).unwrap();
     let (ci, cs, cd, cv, ce) =
         (col("incidence_deg"), col("side"), col("detector_deg"), col("value"), col("value_stderr"));
+    let ch = col("n_hits");
     let mut m = HashMap::new();
     for l in lines {
         let f: Vec<&str> = l.split(',').collect();
@@ -42,7 +48,14 @@ fn read_csv(name: &str) -> HashMap<(i32, char, i32), RefRow> {
             f[cs].chars().next().unwrap(),
             f[cd].parse::<f64>().unwrap().round() as i32,
         );
-        m.insert(key, RefRow { value: f[cv].parse().unwrap(), stderr: f[ce].parse().unwrap() });
+        m.insert(
+            key,
+            RefRow {
+                value: f[cv].parse().unwrap(),
+                stderr: f[ce].parse().unwrap(),
+                hits: f[ch].parse().unwrap(),
+            },
+        );
     }
     m
 }
@@ -88,10 +101,11 @@ fn run_case(photons: u64) {
                 for (k, d) in dets.iter().enumerate() {
                     let side = if d.side == Side::R { 'R' } else { 'T' };
                     let rr = &reference[&(incid[ii] as i32, side, d.angle_deg.round() as i32)];
-                    if rr.value <= 1e-3 {
+                    let n_ref = 16e6;
+                    if rr.value <= 1e-3 || rr.hits * photons as f64 / n_ref < 20.0 {
                         continue;
                     }
-                    let s = (r.value_stderr[k].powi(2) + rr.stderr.powi(2)).sqrt();
+                    let s = rr.stderr * (1.0 + n_ref / photons as f64).sqrt();
                     let z = (r.value[k] - rr.value) / s;
                     n += 1;
                     worst = worst.max(z.abs());
@@ -123,7 +137,7 @@ fn run_case(photons: u64) {
             summary.push(format!("{case} {entry}: {bad}/{n} detectors with |z| > 3, max |z| {worst:.2}"));
             total_n += n;
             total_bad += bad;
-            assert!(n > 100, "{case} {entry}: only {n} detectors compared");
+            assert!(n > 30, "{case} {entry}: only {n} detectors compared");
             assert!(
                 bad as f64 <= 0.01 * n as f64,
                 "{case} {entry}: {bad}/{n} detectors with |z| > 3\n{}",
@@ -136,12 +150,12 @@ fn run_case(photons: u64) {
 
 #[test]
 fn single_scattering_plate_matches_mitsuba_reference() {
-    run_case(150_000);
+    run_case(400_000);
 }
 
 /// Heavy tier: `cargo test -p opal --release --test gonio_reference -- --ignored`.
 #[test]
 #[ignore]
-fn single_scattering_plate_matches_mitsuba_reference_4m() {
-    run_case(4_000_000);
+fn single_scattering_plate_matches_mitsuba_reference_16m() {
+    run_case(16_000_000);
 }

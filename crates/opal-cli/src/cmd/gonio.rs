@@ -450,7 +450,7 @@ pub fn totals_json(res: &GonioResult, seconds: f64) -> serde_json::Value {
         .iter()
         .map(|r| {
             serde_json::json!({
-                "incidence_deg": r.incidence.to_degrees(),
+                "incidence_deg": (r.incidence.to_degrees() * 1e9).round() / 1e9,
                 "R": r.r, "T": r.t, "lost": r.lost, "absorbed": r.absorbed,
                 "mean_interactions": r.mean_interactions,
             })
