@@ -371,8 +371,10 @@ impl BoxRay {
             for l in 0..4 {
                 let tn = (near[l] - self.o[a]) * self.inv[a];
                 let tf = (far[l] - self.o[a]) * self.inv[a] * BOX_FAR_SCALE;
-                t0[l] = t0[l].max(tn);
-                t1[l] = t1[l].min(tf);
+                // `if` rather than f32::max/min: one maxps/minps each, and a NaN `tn`/`tf`
+                // (0 · ∞) leaves the bound unchanged, i.e. does not constrain (conservative).
+                t0[l] = if tn > t0[l] { tn } else { t0[l] };
+                t1[l] = if tf < t1[l] { tf } else { t1[l] };
             }
         }
         let mut mask = 0;
@@ -481,7 +483,25 @@ impl Bvh {
             } else {
                 let n = &self.nodes[cur.child as usize];
                 let (tn, mask) = br.hit4(n, tmax);
-                if mask != 0 {
+                if ANY {
+                    // Any hit: no ordering; leaf children are tested at once, inner ones pushed.
+                    for l in 0..4 {
+                        if mask >> l & 1 == 0 {
+                            continue;
+                        }
+                        if n.count[l] > 0 {
+                            let start = n.child[l] as usize;
+                            for i in start..start + n.count[l] as usize {
+                                if let Some((t, b1, b2)) = tr.intersect(&self.tris[i], tmax) {
+                                    return Some(Hit { t, prim: self.prims[i], b1, b2 });
+                                }
+                            }
+                        } else {
+                            stack[sp] = Entry { child: n.child[l], count: 0, tnear: tn[l] };
+                            sp += 1;
+                        }
+                    }
+                } else if mask != 0 {
                     // Hit children sorted by entry distance (insertion sort, at most 4).
                     let mut hits = [Entry::default(); 4];
                     let mut h = 0;
