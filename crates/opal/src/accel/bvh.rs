@@ -457,6 +457,8 @@ impl Bvh {
         self.nodes.len()
     }
 
+    // Lane loops index several SoA arrays at once (boxes, children, counts).
+    #[allow(clippy::needless_range_loop)]
     #[inline(always)]
     fn traverse<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
         let br = BoxRay::new(ray);
