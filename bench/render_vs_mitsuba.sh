@@ -16,13 +16,15 @@ fi
 if ! ls /usr/lib/x86_64-linux-gnu/ 2>/dev/null | grep -Eq '^libLLVM(-|\.so\.)(1[6-9]|[2-9][0-9])'; then
   (apt-get update -qq && apt-get install -y -q libllvm19 >/dev/null) || echo "warning: no libLLVM >= 16: llvm variants will fail" >&2
 fi
-cargo build --release -q -p opal-cli
+# OPAL_PROFILE=dev reuses the test build (opt-level 3 too, with debug assertions)
+PROFILE="${OPAL_PROFILE:-release}"
+if [ "$PROFILE" = release ]; then cargo build --release -q -p opal-cli; OPAL=target/release/opal
+else cargo build -q -p opal-cli; OPAL=target/debug/opal; fi
 WORK=$(mktemp -d)
 trap 'rm -rf "$WORK"' EXIT
 cp -r crates/opal/tests/data/cbox "$WORK/cbox"
 # 512x512 film for every sensor
 sed -i 's/name="width" value="256"/name="width" value="512"/; s/name="height" value="256"/name="height" value="512"/' "$WORK/cbox/scene.xml"
-OPAL=target/release/opal
 "$OPAL" render "$WORK/cbox/scene.xml" -o "$WORK/warm.exr" --spp 64 --max-depth 8 --quiet >/dev/null 2>&1
 opal_times=()
 for i in $(seq "$REPEATS"); do

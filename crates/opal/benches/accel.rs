@@ -13,7 +13,6 @@ use opal::math::Vec3;
 use std::time::Duration;
 
 #[path = "../examples/accel_compare.rs"]
-#[allow(dead_code)]
 mod compare;
 use compare::{Obvhs, big_mesh, incoherent_rays, trace, trace_any};
 

@@ -20,9 +20,10 @@ use opal::sampling::Rng;
 use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
-/// The benchmark mesh: a displaced UV sphere with 2 · 1000 · 500 = 1 000 000 triangles.
+/// The benchmark mesh: a UV sphere with 2 · 1000 · 500 = 1 000 000 triangles (edges ≈ 0.006),
+/// each vertex radius jittered by up to ±0.001 (a rough surface, not a field of spikes).
 pub fn big_mesh() -> Vec<[Vec3; 3]> {
-    mesh_triangles(&sphere_mesh(501, 1000, 0.02, 42))
+    mesh_triangles(&sphere_mesh(501, 1000, 0.001, 42))
 }
 
 /// Incoherent rays: uniform origins in a ball of radius `r` around `c`, uniform directions.
@@ -214,7 +215,9 @@ fn main() {
     pool.install(|| {
         println!("threads: {threads}");
         let rays = incoherent_rays(1 << 20, Vec3::ZERO, 0.8, 1);
-        run_scene("displaced sphere", big_mesh(), &rays, repeats);
+        if std::env::var("ONLY_CBOX").is_err() {
+            run_scene("displaced sphere", big_mesh(), &rays, repeats);
+        }
         // Cornell box: origins inside the box, random directions (about half escape through the
         // open front).
         let rays = incoherent_rays(1 << 21, Vec3::ZERO, 0.95, 2);
