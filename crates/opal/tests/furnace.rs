@@ -94,6 +94,34 @@ fn furnace_high_albedo_with_russian_roulette() {
     assert!(se > 0.0);
 }
 
+/// The furnace sphere: a closed unit sphere (tessellated like Mitsuba's `sphere` shape in the
+/// loader) with inward-facing, emitting, Lambertian walls; camera at the centre.
+#[test]
+fn furnace_sphere() {
+    let mut mesh = opal::scene::load::sphere_mesh(
+        opal::scene::load::SPHERE_SEGMENTS_PHI,
+        opal::scene::load::SPHERE_SEGMENTS_THETA,
+    );
+    for t in &mut mesh.indices {
+        t.swap(1, 2); // face inwards
+    }
+    for n in &mut mesh.normals {
+        *n = -*n;
+    }
+    let mut desc = furnace_scene(0.7, 0.3);
+    desc.shapes[0].mesh = mesh;
+    desc.sensors[0].to_world = Mat4::from_rotation_x(0.4);
+    let scene = Scene::build(&desc).unwrap();
+    let s = PathSettings { spp: 128, max_depth: -1, rr_depth: 3, hide_emitters: false, seed: 2 };
+    let out = render(&scene, 0, &s, &|| {});
+    assert_eq!(out.nonfinite, 0);
+    let expected = 0.3 / (1.0 - 0.7);
+    for c in 0..3 {
+        let (m, se) = mean_and_se(&out, c);
+        assert!((m - expected).abs() <= 4.0 * se, "channel {c}: {m} ± {se}, expected {expected}");
+    }
+}
+
 #[test]
 fn same_image_for_any_thread_count() {
     let scene = Scene::build(&furnace_scene(0.6, 1.0)).unwrap();
