@@ -101,7 +101,7 @@ fn check_table(theta: &[f64], d: &[f64], what: &str) -> crate::Result<()> {
         ));
     }
     for w in theta.windows(2) {
-        if !(w[1] > w[0]) {
+        if w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater) {
             return Err(crate::Error::invalid(
                 what,
                 format!("θ must increase strictly, got {} then {}", w[0], w[1]),
@@ -341,7 +341,7 @@ impl Ndf for NumericNdf {
         for attempt in 0..1000u32 {
             if attempt > 0 {
                 let r = rng
-                    .get_or_insert_with(|| Rng::new(u.x.to_bits() as u64, u.y.to_bits() as u64, 0x4e44_46));
+                    .get_or_insert_with(|| Rng::new(u.x.to_bits() as u64, u.y.to_bits() as u64, 0x004e_4446));
                 u0 = r.next_f64();
                 u1 = r.next_f64();
             }
@@ -367,7 +367,7 @@ impl Ndf for NumericNdf {
             let accept = (1.0 + t * x).max(0.0) / (1.0 + t * x.abs());
             let ua = {
                 let r = rng
-                    .get_or_insert_with(|| Rng::new(u.x.to_bits() as u64, u.y.to_bits() as u64, 0x4e44_46));
+                    .get_or_insert_with(|| Rng::new(u.x.to_bits() as u64, u.y.to_bits() as u64, 0x004e_4446));
                 r.next_f64()
             };
             if ua < accept {
