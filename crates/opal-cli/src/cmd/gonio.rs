@@ -47,22 +47,22 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub json: bool,
     /// Refractive index of the plate.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub ior: Option<f64>,
     /// Plate thickness in mm.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub thickness_mm: Option<f64>,
     /// Which face is lit: the polished one (`smooth`) or the rough one (`rough`).
     #[arg(long)]
     pub entry: Option<String>,
     /// Beam divergence (half-angle, degrees).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub divergence_deg: Option<f64>,
     /// Angular radius of the detectors (degrees).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub detector_radius_deg: Option<f64>,
     /// NDF of the rough face: FAMILY:ALPHA (ggx:0.15, beckmann:0.25) or student:ALPHA:GAMMA.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub ndf: Option<String>,
     /// Scattering model of the rough face: single, single-hc (height-correlated G), multiple.
     #[arg(long)]
