@@ -571,12 +571,12 @@ fn run_simulate(a: SimulateArgs) -> Result<i32> {
     Ok(0)
 }
 
-/// `opal demo` part: a small simulation (GGX α = 0.15 rough back face, 200 000 photons per
+/// `opal demo` part: a small simulation (GGX α = 0.15 rough back face, 400 000 photons per
 /// incidence) with its plot into `out_dir/gonio/`; returns a JSON summary.
 pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
     let dir = out_dir.join("gonio");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let args = SimulateArgs { output: dir.join("curves.csv"), photons: Some(200_000), ..Default::default() };
+    let args = SimulateArgs { output: dir.join("curves.csv"), photons: Some(400_000), ..Default::default() };
     let cfg = build_config(&PlateFile::default(), &args)?;
     let (gonio, res, secs) = simulate(&cfg)?;
     write_csv(&args.output, &gonio, &res)?;
