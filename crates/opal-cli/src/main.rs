@@ -6,7 +6,6 @@
 mod cmd;
 #[allow(dead_code)]
 mod plot;
-#[allow(dead_code)]
 mod util;
 
 use clap::{Parser, Subcommand};
@@ -28,6 +27,8 @@ enum Command {
     Demo(cmd::demo::DemoArgs),
     /// Virtual goniophotometer: plate with polished/rough faces, beam, detectors.
     Gonio(cmd::gonio::GonioArgs),
+    /// Path-trace a Mitsuba 3 XML scene to OpenEXR (+ PNG preview).
+    Render(cmd::render::RenderArgs),
 }
 
 fn main() {
@@ -36,6 +37,7 @@ fn main() {
     let result = match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Gonio(a) => cmd::gonio::run(a),
+        Command::Render(a) => cmd::render::run(a),
     };
     match result {
         Ok(code) => std::process::exit(code),

@@ -11,6 +11,7 @@
 //! * [`sampling`] — counter-based random numbers and warping functions with their pdfs.
 //! * [`bsdf`] — the [`Bxdf`](bsdf::Bxdf) contract, [`TransportMode`](bsdf::TransportMode) and models.
 //! * [`validate`] — χ² goodness-of-fit, quadrature helpers (product code: tests and CLI use it).
+//! * [`texture`] — texture lookups (Mitsuba `bitmap` semantics).
 //! * [`error`] — the library error type.
 #![warn(missing_docs)]
 
@@ -27,6 +28,7 @@ pub mod math;
 pub mod sampling;
 pub mod scene;
 pub mod spectrum;
+pub mod texture;
 pub mod validate;
 
 pub use error::{Error, Result};

@@ -53,8 +53,7 @@ fn furnace_scene(rho: f32, le: f32) -> SceneDesc {
             far_clip: 100.0,
             spp: None,
         }],
-        integrator: None,
-        source: None,
+        ..Default::default()
     }
 }
 

@@ -1,5 +1,6 @@
 //! Floating-point RGB images (films, textures, reference renders).
 
+pub mod read;
 pub mod write;
 
 use crate::spectrum::Spectrum;

@@ -299,14 +299,6 @@ fn validate_bsdf(id: &str, b: &BsdfDesc) -> Result<()> {
 pub fn eval_texture(t: &TextureDesc, uv: Vec2) -> Spectrum {
     match t {
         TextureDesc::Constant(c) => *c,
-        TextureDesc::Bitmap(b) => tmp_nearest(b, uv),
+        TextureDesc::Bitmap(b) => b.eval(uv),
     }
-}
-
-// TEMPORARY until the texture module lands: nearest lookup with clamping.
-fn tmp_nearest(b: &super::desc::BitmapDesc, uv: Vec2) -> Spectrum {
-    let img = &b.image;
-    let x = ((uv.x * img.width as f32) as isize).clamp(0, img.width as isize - 1) as usize;
-    let y = ((uv.y * img.height as f32) as isize).clamp(0, img.height as isize - 1) as usize;
-    img.get(x, y)
 }

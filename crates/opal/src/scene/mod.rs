@@ -3,5 +3,7 @@
 
 pub mod build;
 pub mod desc;
+pub mod load;
 
 pub use build::{Scene, SurfaceInteraction};
+pub use load::load_mitsuba_xml;
