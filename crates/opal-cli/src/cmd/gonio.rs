@@ -5,7 +5,7 @@ use crate::plot::{LinePlot, Series, save_panels};
 use crate::util::{progress, write_atomic};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
-use opal::bsdf::microfacet::Ndfs;
+use opal::bsdf::microfacet::{Ndfs, Profile};
 use opal::gonio::{
     Beam, DetectorGrid, DetectorLayout, Face, Gonio, GonioResult, GonioSetup, Plate, Scattering, Side,
 };
@@ -47,22 +47,22 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub json: bool,
     /// Refractive index of the plate.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub ior: Option<f64>,
     /// Plate thickness in mm.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub thickness_mm: Option<f64>,
     /// Which face is lit: the polished one (`smooth`) or the rough one (`rough`).
     #[arg(long)]
     pub entry: Option<String>,
     /// Beam divergence (half-angle, degrees).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub divergence_deg: Option<f64>,
     /// Angular radius of the detectors (degrees).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub detector_radius_deg: Option<f64>,
-    /// NDF of the rough face, FAMILY:ALPHA (ggx:0.15, beckmann:0.25).
-    #[arg(long)]
+    /// NDF of the rough face: FAMILY:ALPHA (ggx:0.15, beckmann:0.25) or student:ALPHA:GAMMA.
+    #[arg(long, allow_hyphen_values = true)]
     pub ndf: Option<String>,
     /// Scattering model of the rough face: single, single-hc (height-correlated G), multiple.
     #[arg(long)]
@@ -123,6 +123,16 @@ pub struct FaceSpec {
     pub alpha: Option<f64>,
     /// `single` (default), `single-hc` or `multiple`.
     pub scattering: Option<String>,
+    /// Student-t tail exponent γ ≥ 2 (`ndf = "student"`; 2 = GGX, ∞ = Beckmann).
+    pub gamma: Option<f64>,
+    /// Peak shift δ of the NDF along θ (degrees).
+    pub shift_deg: Option<f64>,
+    /// Tabulated NDF (`ndf = "table"`) or tabulated part of a hybrid (`ndf = "hybrid"`): θ nodes.
+    pub table_theta_deg: Option<Vec<f64>>,
+    /// Values D(θ) at the nodes (≥ 0; normalised automatically).
+    pub table_d: Option<Vec<f64>>,
+    /// Analytic base of a hybrid NDF, FAMILY:ALPHA (ggx, beckmann) or student:ALPHA:GAMMA.
+    pub base: Option<String>,
 }
 
 /// `[beam]`.
@@ -169,26 +179,77 @@ pub struct RunSpec {
     pub max_interactions: Option<u32>,
 }
 
-/// Parses `FAMILY:ALPHA` (or a family name with a separate α).
-pub fn parse_ndf(spec: &str, alpha: Option<f64>, what: &str) -> Result<Ndfs> {
-    let mut it = spec.split(':');
-    let fam = it.next().unwrap_or("").trim().to_ascii_lowercase();
-    let a: f64 = match (it.next(), alpha) {
-        (Some(s), _) => s.trim().parse().with_context(|| format!("{what}: bad alpha in {spec:?}"))?,
-        (None, Some(a)) => a,
-        (None, None) => bail!("{what}: missing alpha in {spec:?} (use FAMILY:ALPHA, e.g. ggx:0.15)"),
+/// Parses `FAMILY:ALPHA` (`ggx:0.15`, `beckmann:0.25`) or `student:ALPHA:GAMMA` into a profile.
+pub fn parse_profile(spec: &str, alpha: Option<f64>, gamma: Option<f64>, what: &str) -> Result<Profile> {
+    let parts: Vec<&str> = spec.split(':').map(str::trim).collect();
+    let fam = parts[0].to_ascii_lowercase();
+    let num = |i: usize, fallback: Option<f64>, name: &str| -> Result<f64> {
+        match (parts.get(i), fallback) {
+            (Some(s), _) => s.parse::<f64>().with_context(|| format!("{what}: bad {name} {s:?} in {spec:?}")),
+            (None, Some(v)) => Ok(v),
+            (None, None) => bail!("{what}: missing {name} in {spec:?} (e.g. ggx:0.15, student:0.2:3)"),
+        }
     };
-    if it.next().is_some() {
+    let max_parts = if fam == "student" { 3 } else { 2 };
+    if parts.len() > max_parts {
         bail!("{what}: too many ':' in {spec:?}");
     }
-    if !(a.is_finite() && a > 0.0) {
-        bail!("{what}: alpha must be > 0, got {a}");
+    let alpha = num(1, alpha, "alpha")?;
+    if !(alpha.is_finite() && alpha > 0.0) {
+        bail!("{what}: alpha must be > 0, got {alpha}");
     }
-    Ok(match fam.as_str() {
-        "ggx" | "trowbridge-reitz" | "tr" => Ndfs::ggx(a as f32),
-        "beckmann" => Ndfs::beckmann(a as f32),
-        _ => bail!("{what}: unknown NDF family {fam:?} (ggx, beckmann)"),
+    let p = match fam.as_str() {
+        "ggx" | "trowbridge-reitz" | "tr" => Profile::Ggx { alpha },
+        "beckmann" => Profile::Beckmann { alpha },
+        "student" => Profile::StudentT { alpha, gamma: num(2, gamma, "gamma")? },
+        _ => bail!("{what}: unknown NDF family {fam:?} (ggx, beckmann, student, table, hybrid)"),
+    };
+    p.validate().map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
+    Ok(p)
+}
+
+/// Builds the NDF from a profile: analytic GGX/Beckmann stay closed-form, the rest is tabulated.
+pub fn ndf_from_profile(p: Profile, what: &str) -> Result<Ndfs> {
+    Ok(match p {
+        Profile::Ggx { alpha } => Ndfs::ggx(alpha as f32),
+        Profile::Beckmann { alpha } => Ndfs::beckmann(alpha as f32),
+        p => Ndfs::numeric(p).map_err(|e| anyhow::anyhow!("{what}: {e}"))?,
     })
+}
+
+/// Parses `FAMILY:ALPHA` / `student:ALPHA:GAMMA` into an NDF.
+pub fn parse_ndf(spec: &str, alpha: Option<f64>, what: &str) -> Result<Ndfs> {
+    ndf_from_profile(parse_profile(spec, alpha, None, what)?, what)
+}
+
+fn face_ndf(spec: &FaceSpec, what: &str) -> Result<Ndfs> {
+    let name = spec.ndf.as_deref().unwrap_or("");
+    let fam = name.split(':').next().unwrap_or("").trim().to_ascii_lowercase();
+    let table = || -> Result<(Vec<f64>, Vec<f64>)> {
+        let (Some(t), Some(d)) = (&spec.table_theta_deg, &spec.table_d) else {
+            bail!("{what}: ndf = {fam:?} needs table_theta_deg and table_d");
+        };
+        Ok((t.iter().map(|x| x.to_radians()).collect(), d.clone()))
+    };
+    let mut profile = match fam.as_str() {
+        "table" => {
+            let (theta, d) = table()?;
+            Profile::Table { theta, d }
+        }
+        "hybrid" => {
+            let base =
+                spec.base.as_deref().with_context(|| format!("{what}: ndf = \"hybrid\" needs base"))?;
+            let base = parse_profile(base, spec.alpha, spec.gamma, &format!("{what}.base"))?;
+            let (theta, d) = table()?;
+            Profile::Hybrid { base: Box::new(base), theta, d }
+        }
+        _ => parse_profile(name, spec.alpha, spec.gamma, &format!("{what}.ndf"))?,
+    };
+    if let Some(s) = spec.shift_deg {
+        profile = Profile::Shifted { base: Box::new(profile), delta: s.to_radians() };
+    }
+    profile.validate().map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
+    ndf_from_profile(profile, what)
 }
 
 fn parse_scattering(s: &str, what: &str) -> Result<Scattering> {
@@ -203,7 +264,7 @@ fn parse_scattering(s: &str, what: &str) -> Result<Scattering> {
 fn face(spec: &FaceSpec, what: &str, ndf_flag: Option<&str>, scat_flag: Option<&str>) -> Result<Face> {
     match spec.kind.as_str() {
         "polished" | "smooth" => {
-            if ndf_flag.is_none() && (spec.ndf.is_some() || spec.alpha.is_some()) {
+            if spec.ndf.is_some() || spec.alpha.is_some() {
                 bail!("{what}: a polished face takes no ndf/alpha");
             }
             Ok(Face::Polished)
@@ -211,7 +272,7 @@ fn face(spec: &FaceSpec, what: &str, ndf_flag: Option<&str>, scat_flag: Option<&
         "rough" => {
             let ndf = match (ndf_flag, &spec.ndf) {
                 (Some(f), _) => parse_ndf(f, None, "--ndf")?,
-                (None, Some(n)) => parse_ndf(n, spec.alpha, &format!("{what}.ndf"))?,
+                (None, Some(_)) => face_ndf(spec, what)?,
                 (None, None) => bail!("{what}: a rough face needs ndf (e.g. ndf = \"ggx\", alpha = 0.15)"),
             };
             let scattering = match (scat_flag, &spec.scattering) {
@@ -250,7 +311,7 @@ pub fn build_config(file: &PlateFile, a: &SimulateArgs) -> Result<Config> {
         kind: "rough".into(),
         ndf: Some("ggx".into()),
         alpha: Some(0.15),
-        scattering: None,
+        ..Default::default()
     });
     // --ndf / --scattering apply to the rough face(s)
     let front = face(
@@ -510,12 +571,12 @@ fn run_simulate(a: SimulateArgs) -> Result<i32> {
     Ok(0)
 }
 
-/// `opal demo` part: a small simulation (GGX α = 0.15 rough back face, 200 000 photons per
+/// `opal demo` part: a small simulation (GGX α = 0.15 rough back face, 400 000 photons per
 /// incidence) with its plot into `out_dir/gonio/`; returns a JSON summary.
 pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
     let dir = out_dir.join("gonio");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let args = SimulateArgs { output: dir.join("curves.csv"), photons: Some(200_000), ..Default::default() };
+    let args = SimulateArgs { output: dir.join("curves.csv"), photons: Some(400_000), ..Default::default() };
     let cfg = build_config(&PlateFile::default(), &args)?;
     let (gonio, res, secs) = simulate(&cfg)?;
     write_csv(&args.output, &gonio, &res)?;

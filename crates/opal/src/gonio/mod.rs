@@ -183,6 +183,16 @@ impl FaceModel {
     }
 }
 
+/// Per-incidence constants of the beam.
+#[derive(Clone, Copy)]
+struct BeamFrame {
+    sa: f32,
+    ca: f32,
+    st: f32,
+    ct: f32,
+    cos_div: f32,
+}
+
 /// The simulator: a validated setup with its detector look-up.
 #[derive(Clone, Debug)]
 pub struct Gonio {
@@ -357,8 +367,16 @@ impl Gonio {
                     let mut acc = Acc::new(ndet);
                     let count = BATCH.min(n - b * BATCH);
                     let mut rng = Rng::new(self.setup.seed, stream, b);
+                    let a = self.setup.beam.azimuth;
+                    let bf = BeamFrame {
+                        sa: a.sin() as f32,
+                        ca: a.cos() as f32,
+                        st: inc.sin() as f32,
+                        ct: inc.cos() as f32,
+                        cos_div: self.setup.beam.divergence.cos() as f32,
+                    };
                     for _ in 0..count {
-                        self.trace_photon(plate, front, back, inc, &mut rng, &mut acc);
+                        self.trace_photon(plate, front, back, &bf, &mut rng, &mut acc);
                     }
                     tick();
                     acc
@@ -402,16 +420,15 @@ impl Gonio {
         plate: &Plate,
         front: &FaceModel,
         back: &FaceModel,
-        inc: f64,
+        bf: &BeamFrame,
         rng: &mut Rng,
         acc: &mut Acc,
     ) {
         let beam = &self.setup.beam;
-        let (sa, ca) = (beam.azimuth.sin() as f32, beam.azimuth.cos() as f32);
-        let (st, ct) = (inc.sin() as f32, inc.cos() as f32);
+        let BeamFrame { sa, ca, st, ct, cos_div } = *bf;
         let k0 = Vec3::new(st * ca, st * sa, -ct);
         let mut d = if beam.divergence > 0.0 {
-            let local = square_to_uniform_cone(rng.next_2d(), beam.divergence.cos() as f32);
+            let local = square_to_uniform_cone(rng.next_2d(), cos_div);
             // frame around k0: e1 in the plane of incidence, e2 normal to it
             let e1 = Vec3::new(ct * ca, ct * sa, st);
             let e2 = Vec3::new(-sa, ca, 0.0);

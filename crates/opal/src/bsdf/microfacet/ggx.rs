@@ -83,7 +83,7 @@ mod tests {
                 &format!("ggx_{alpha}"),
                 &Ggx::new(alpha).unwrap(),
                 2e-3,
-                alpha == 0.3 || alpha == 0.35,
+                if alpha == 0.3 || alpha == 0.35 { &[0.0, 0.9, 1.3][..] } else { &[][..] },
             );
         }
     }
@@ -93,7 +93,7 @@ mod tests {
     #[ignore]
     fn ndf_chi2_all_alphas() {
         for alpha in [0.3f32, 0.6, 1.0] {
-            check_ndf(&format!("ggx_{alpha}"), &Ggx::new(alpha).unwrap(), 2e-3, true);
+            check_ndf(&format!("ggx_{alpha}"), &Ggx::new(alpha).unwrap(), 2e-3, &[0.0, 0.9, 1.3]);
         }
     }
 
