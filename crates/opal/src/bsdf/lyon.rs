@@ -40,8 +40,8 @@ impl PowLobe {
 
 impl LobeShape for PowLobe {
     #[inline]
-    fn value(&self, t: f32) -> f32 {
-        let b = 1.0 - self.k32 * (1.0 - t);
+    fn value(&self, x: f32) -> f32 {
+        let b = 1.0 - self.k32 * x;
         if b > 0.0 { b.powi(self.m) } else { 0.0 }
     }
     fn value_f64(&self, t: f64) -> f64 {
@@ -100,7 +100,13 @@ mod tests {
         for form in [LobeForm::Phong, LobeForm::Blinn] {
             for n in [1.0, 20.0, 120.0] {
                 let b = Lyon::new(n, 2, form, 1.0, Spectrum::ONE);
-                chi2_at(&format!("lyon_{}_n{n}", form.name()), &b, &[0.0, 0.5, 1.0, 1.45], 24, if n >= 100.0 { 64 } else { 32 });
+                chi2_at(
+                    &format!("lyon_{}_n{n}", form.name()),
+                    &b,
+                    &[0.0, 0.5, 1.0, 1.45],
+                    24,
+                    if n >= 100.0 { 64 } else { 32 },
+                );
                 sample_consistency(&b, 0.7);
                 reciprocity(&b);
             }
@@ -131,7 +137,8 @@ mod tests {
             for _ in 0..200 {
                 let wo = crate::sampling::square_to_cosine_hemisphere(rng.next_2d());
                 let wi = crate::sampling::square_to_cosine_hemisphere(rng.next_2d());
-                let (fa, fb) = (a.eval(wo, wi, TransportMode::Radiance), b.eval(wo, wi, TransportMode::Radiance));
+                let (fa, fb) =
+                    (a.eval(wo, wi, TransportMode::Radiance), b.eval(wo, wi, TransportMode::Radiance));
                 assert_eq!(fa, fb);
             }
         }

@@ -41,7 +41,10 @@ struct Parser<'a> {
 
 impl Parser<'_> {
     fn err(&self, why: String) -> Error {
-        Error::invalid(format!("normalisation expression \"{}\"", self.src), format!("column {}: {why}", self.pos + 1))
+        Error::invalid(
+            format!("normalisation expression \"{}\"", self.src),
+            format!("column {}: {why}", self.pos + 1),
+        )
     }
     fn skip_ws(&mut self) {
         while self.pos < self.s.len() && self.s[self.pos].is_ascii_whitespace() {
@@ -104,7 +107,9 @@ impl Parser<'_> {
             }
             Some(c) if c.is_ascii_digit() || c == b'.' => {
                 let start = self.pos;
-                while self.pos < self.s.len() && (self.s[self.pos].is_ascii_digit() || self.s[self.pos] == b'.') {
+                while self.pos < self.s.len()
+                    && (self.s[self.pos].is_ascii_digit() || self.s[self.pos] == b'.')
+                {
                     self.pos += 1;
                 }
                 // optional exponent: 1e-3, 2.5E+2
@@ -130,7 +135,9 @@ impl Parser<'_> {
             }
             Some(c) if c.is_ascii_alphabetic() || c == b'_' => {
                 let start = self.pos;
-                while self.pos < self.s.len() && (self.s[self.pos].is_ascii_alphanumeric() || self.s[self.pos] == b'_') {
+                while self.pos < self.s.len()
+                    && (self.s[self.pos].is_ascii_alphanumeric() || self.s[self.pos] == b'_')
+                {
                     self.pos += 1;
                 }
                 match &self.src[start..self.pos] {
@@ -236,7 +243,9 @@ mod tests {
 
     #[test]
     fn rejects_bad_input_with_position() {
-        for (s, col) in [("(n+A", 5), ("n+", 3), ("n*x", 3), ("", 1), ("(n+A)/B)", 8), ("2..3", 1), ("n $ 2", 3)] {
+        for (s, col) in
+            [("(n+A", 5), ("n+", 3), ("n*x", 3), ("", 1), ("(n+A)/B)", 8), ("2..3", 1), ("n $ 2", 3)]
+        {
             let e = NormExpr::parse(s).unwrap_err().to_string();
             assert!(e.contains(&format!("column {col}")), "{s}: {e}");
         }

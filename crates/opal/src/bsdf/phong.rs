@@ -39,8 +39,9 @@ impl CosPower {
 
 impl LobeShape for CosPower {
     #[inline]
-    fn value(&self, t: f32) -> f32 {
-        if t > 0.0 { t.powf(self.n32) } else { 0.0 }
+    fn value(&self, x: f32) -> f32 {
+        // t^n = exp(n ln(1 − x))
+        if x < 1.0 { (self.n32 * (-x).ln_1p()).exp() } else { 0.0 }
     }
     fn value_f64(&self, t: f64) -> f64 {
         if t > 0.0 { t.powf(self.n) } else { 0.0 }

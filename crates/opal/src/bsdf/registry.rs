@@ -60,7 +60,9 @@ impl PluginParams {
     fn float(&self, name: &str, default: Option<f64>) -> Result<f64> {
         match self.values.get(name) {
             Some(ParamValue::Float(v)) if v.is_finite() => Ok(*v),
-            Some(ParamValue::Float(v)) => Err(Error::invalid(self.what(name), format!("must be finite, got {v}"))),
+            Some(ParamValue::Float(v)) => {
+                Err(Error::invalid(self.what(name), format!("must be finite, got {v}")))
+            }
             Some(other) => Err(Error::invalid(self.what(name), format!("must be a float, got {other:?}"))),
             None => default.ok_or_else(|| Error::invalid(self.what(name), "is required")),
         }
@@ -76,7 +78,9 @@ impl PluginParams {
         let s = match self.values.get(name) {
             Some(ParamValue::Rgb(s)) => *s,
             Some(ParamValue::Float(v)) => Spectrum::splat(*v as f32),
-            Some(other) => return Err(Error::invalid(self.what(name), format!("must be rgb or float, got {other:?}"))),
+            Some(other) => {
+                return Err(Error::invalid(self.what(name), format!("must be rgb or float, got {other:?}")));
+            }
             None => default,
         };
         if !s.is_finite() || s.0.iter().any(|c| *c < 0.0) {
@@ -86,8 +90,9 @@ impl PluginParams {
     }
     fn form(&self, default: LobeForm) -> Result<LobeForm> {
         let s = self.string("form", default.name())?;
-        LobeForm::parse(&s)
-            .ok_or_else(|| Error::invalid(self.what("form"), format!("must be \"phong\" or \"blinn\", got \"{s}\"")))
+        LobeForm::parse(&s).ok_or_else(|| {
+            Error::invalid(self.what("form"), format!("must be \"phong\" or \"blinn\", got \"{s}\""))
+        })
     }
     /// Normalisation factor from the `normalisation` string (named ones handled by `named`).
     fn norm(&self, n: f64, named: &dyn Fn(&str) -> Option<f64>) -> Result<f64> {
@@ -126,7 +131,9 @@ pub fn build_plugin(p: &PluginParams) -> Result<Bxdfs> {
         Ok(n)
     };
     Ok(match p.plugin.as_str() {
-        "diffuse" | "lambert" => Bxdfs::Lambert(Lambert::new(p.spectrum("reflectance", Spectrum::splat(0.5))?)),
+        "diffuse" | "lambert" => {
+            Bxdfs::Lambert(Lambert::new(p.spectrum("reflectance", Spectrum::splat(0.5))?))
+        }
         "phong" => {
             let n = exponent(true)?;
             let c = p.norm(n, &|s| (s == "phong").then(|| Phong::normalised_factor(n)))?;
@@ -260,7 +267,10 @@ pub fn find(name: &str) -> Result<&'static ModelInfo> {
     MODELS.iter().find(|m| m.name == name).ok_or_else(|| {
         Error::invalid(
             format!("model '{name}'"),
-            format!("unknown; known models: {}", MODELS.iter().map(|m| m.name).collect::<Vec<_>>().join(", ")),
+            format!(
+                "unknown; known models: {}",
+                MODELS.iter().map(|m| m.name).collect::<Vec<_>>().join(", ")
+            ),
         )
     })
 }
@@ -311,7 +321,8 @@ impl ModelSpec {
     }
     /// Plugin description at parameter value `value`.
     pub fn plugin_params(&self, value: f64) -> PluginParams {
-        let mut p = PluginParams::new(self.info.plugin).with(self.info.plugin_param, ParamValue::Float(value));
+        let mut p =
+            PluginParams::new(self.info.plugin).with(self.info.plugin_param, ParamValue::Float(value));
         for (k, v) in self.info.fixed {
             p = p.with(k, ParamValue::Str(v.to_string()));
         }
@@ -351,7 +362,10 @@ mod tests {
     #[test]
     fn named_and_expression_normalisations_agree() {
         let s = ModelSpec::new("pow16-norm").unwrap();
-        let t = ModelSpec::new("pow16").unwrap().with_norm(NormSpec { expr: NormExpr::paper(), a: 6.0, b: 24.55 }).unwrap();
+        let t = ModelSpec::new("pow16")
+            .unwrap()
+            .with_norm(NormSpec { expr: NormExpr::paper(), a: 6.0, b: 24.55 })
+            .unwrap();
         let (wo, wi) = (Vec3::Z, Vec3::new(0.1, 0.0, 0.995).normalize());
         let (a, b) = (s.build(30.0).unwrap(), t.build(30.0).unwrap());
         assert_eq!(a.eval(wo, wi, TransportMode::Radiance), b.eval(wo, wi, TransportMode::Radiance));

@@ -56,8 +56,9 @@ impl SchlickLobe {
 
 impl LobeShape for SchlickLobe {
     #[inline]
-    fn value(&self, t: f32) -> f32 {
-        if t > 0.0 { t / (self.n32 * (1.0 - t) + t) } else { 0.0 }
+    fn value(&self, x: f32) -> f32 {
+        let t = 1.0 - x;
+        if t > 0.0 { t / (self.n32 * x + t) } else { 0.0 }
     }
     fn value_f64(&self, t: f64) -> f64 {
         if t > 0.0 { t / (self.n * (1.0 - t) + t) } else { 0.0 }
@@ -125,7 +126,13 @@ mod tests {
         for form in [LobeForm::Phong, LobeForm::Blinn] {
             for n in [1.0, 20.0, 120.0] {
                 let b = Schlick::new(n, form, 1.0, Spectrum::ONE);
-                chi2_at(&format!("schlick_{}_n{n}", form.name()), &b, &[0.0, 0.5, 1.0, 1.45], 24, if n >= 100.0 { 64 } else { 32 });
+                chi2_at(
+                    &format!("schlick_{}_n{n}", form.name()),
+                    &b,
+                    &[0.0, 0.5, 1.0, 1.45],
+                    24,
+                    if n >= 100.0 { 64 } else { 32 },
+                );
                 sample_consistency(&b, 0.7);
                 reciprocity(&b);
             }
