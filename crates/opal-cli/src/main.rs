@@ -4,6 +4,8 @@
 //! 2 usage / I-O / bad input. Errors print `error: {cause chain}`.
 
 mod cmd;
+#[allow(dead_code)]
+mod plot;
 mod util;
 
 use clap::{Parser, Subcommand};
@@ -23,6 +25,8 @@ struct Cli {
 enum Command {
     /// Run every workflow on data shipped with Opal and write results to `opal-demo/`.
     Demo(cmd::demo::DemoArgs),
+    /// Path-trace a Mitsuba 3 XML scene to OpenEXR (+ PNG preview).
+    Render(cmd::render::RenderArgs),
 }
 
 fn main() {
@@ -30,6 +34,7 @@ fn main() {
     util::set_quiet(cli.quiet);
     let result = match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
+        Command::Render(a) => cmd::render::run(a),
     };
     match result {
         Ok(code) => std::process::exit(code),

@@ -11,18 +11,23 @@
 //! * [`sampling`] — counter-based random numbers and warping functions with their pdfs.
 //! * [`bsdf`] — the [`Bxdf`](bsdf::Bxdf) contract, [`TransportMode`](bsdf::TransportMode) and models.
 //! * [`validate`] — χ² goodness-of-fit, quadrature helpers (product code: tests and CLI use it).
+//! * [`texture`] — texture lookups (Mitsuba `bitmap` semantics).
 //! * [`error`] — the library error type.
 #![warn(missing_docs)]
 
 pub mod accel;
 pub mod bsdf;
+pub mod camera;
 pub mod error;
 pub mod geometry;
 pub mod image;
+pub mod integrator;
+pub mod light;
 pub mod math;
 pub mod sampling;
 pub mod scene;
 pub mod spectrum;
+pub mod texture;
 pub mod validate;
 
 pub use error::{Error, Result};

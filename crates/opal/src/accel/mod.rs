@@ -1,6 +1,17 @@
 //! Ray–triangle acceleration: closest-hit and any-hit queries over a triangle soup.
 //!
-//! [`BruteForce`] tests every triangle; it is the reference the BVH is tested against.
+//! * [`triangle`]: the watertight ray–triangle test (Woop et al. 2013) every structure uses, and
+//!   robust ray spawning ([`offset_ray_origin`], [`spawn_ray`], [`spawn_ray_to`]).
+//! * [`Bvh`]: the acceleration structure the engine uses (binned SAH BVH, see [`bvh`]).
+//! * [`scenes`]: deterministic meshes and soups for tests and benchmarks.
+//! * [`BruteForce`] tests every triangle; it is the reference the BVH is tested against.
+
+pub mod bvh;
+pub mod scenes;
+pub mod triangle;
+
+pub use bvh::Bvh;
+pub use triangle::{TriRay, intersect_triangle, offset_ray_origin, spawn_ray, spawn_ray_to};
 
 use crate::geometry::Ray;
 use crate::math::Vec3;
@@ -18,7 +29,8 @@ pub struct Hit {
     pub b2: f32,
 }
 
-/// Möller–Trumbore ray–triangle test (reference only).
+/// Möller–Trumbore ray–triangle test (not watertight; kept as a reference, the engine uses
+/// [`intersect_triangle`]).
 pub fn intersect_triangle_mt(ray: &Ray, tri: &[Vec3; 3], tmax: f32) -> Option<(f32, f32, f32)> {
     let e1 = tri[1] - tri[0];
     let e2 = tri[2] - tri[0];
@@ -53,20 +65,30 @@ impl BruteForce {
     pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
         BruteForce { tris }
     }
-    /// Closest hit with `t < ray.tmax`.
+    /// Closest hit with `0 < t < ray.tmax` (watertight test, see [`triangle`]).
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut tmax = ray.tmax;
+        let tr = TriRay::new(ray);
         for (i, tri) in self.tris.iter().enumerate() {
-            if let Some((t, b1, b2)) = intersect_triangle_mt(ray, tri, tmax) {
+            if let Some((t, b1, b2)) = tr.intersect(tri, tmax) {
                 tmax = t;
                 best = Some(Hit { t, prim: i as u32, b1, b2 });
             }
         }
         best
     }
-    /// Whether anything is hit with `t < ray.tmax`.
+    /// Whether anything is hit with `0 < t < ray.tmax`.
     pub fn occluded(&self, ray: &Ray) -> bool {
-        self.tris.iter().any(|tri| intersect_triangle_mt(ray, tri, ray.tmax).is_some())
+        let tr = TriRay::new(ray);
+        self.tris.iter().any(|tri| tr.intersect(tri, ray.tmax).is_some())
+    }
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.tris.len()
+    }
+    /// Whether there are no triangles.
+    pub fn is_empty(&self) -> bool {
+        self.tris.is_empty()
     }
 }

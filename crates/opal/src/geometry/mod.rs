@@ -1,6 +1,9 @@
 //! Geometry: rays and triangle meshes (the only primitive the engine intersects; Mitsuba's
 //! analytic shapes are tessellated at load time, see docs/scene-format.md).
 
+pub mod obj;
+pub mod ply;
+
 use crate::math::{Vec2, Vec3};
 
 /// A ray `o + t d`, `t ∈ (0, tmax)`. `d` need not be normalised for intersection, but the

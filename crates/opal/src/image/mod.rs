@@ -1,5 +1,8 @@
 //! Floating-point RGB images (films, textures, reference renders).
 
+pub mod read;
+pub mod write;
+
 use crate::spectrum::Spectrum;
 
 /// Linear RGB float image, row-major, row 0 at the top.

@@ -21,6 +21,9 @@ pub struct SceneDesc {
     pub integrator: Option<IntegratorDesc>,
     /// Where the description came from (for messages).
     pub source: Option<std::path::PathBuf>,
+    /// Non-fatal remarks from loading (dropped degenerate triangles, Mitsuba defaults that
+    /// Opal replaces...), one sentence each naming the file/shape concerned.
+    pub warnings: Vec<String>,
 }
 
 /// One shape.

@@ -1,0 +1,196 @@
+//! Image readers: OpenEXR (any channel names, any size), PNG (8/16-bit, grey or colour, alpha
+//! dropped) and Radiance HDR.
+//!
+//! * [`read_image`] returns the stored values as linear floats **without** applying any
+//!   transfer function: an 8-bit PNG texel `k` becomes `k/255`, a 16-bit one `k/65535`.
+//!   [`read_image_decoded`] additionally says whether the file's values are sRGB-encoded
+//!   (PNG) or linear (EXR, HDR), so that a texture loader can apply [`srgb_to_linear`] unless
+//!   the scene asks for `raw` data (Mitsuba's `bitmap` semantics).
+//! * EXR colour is read **by channel name** (`R`, `G`, `B`; a lone `Y` gives grey), never by
+//!   position: OpenEXR stores channels sorted by name.
+//! * [`read_exr_channels`] reads every channel of an EXR file under its full name (layer name
+//!   prefixed with a dot when the file has named layers), e.g. Mitsuba AOV files with
+//!   `albedo.R`, `depth.T`, `position.X`.
+//!
+//! Row 0 is the top row of the image, as in [`Image`]. Tests: unit tests below (PNG 8/16-bit
+//! round trip through the `image` crate's encoder, sRGB curve) and `tests/scene_load.rs`
+//! (the Cornell-box back-wall EXR, decoding errors).
+
+use super::Image;
+use crate::error::{Error, Result};
+use crate::spectrum::Spectrum;
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// An image as read from disk plus how its values are encoded.
+#[derive(Clone, Debug)]
+pub struct DecodedImage {
+    /// The stored values as floats (no transfer function applied).
+    pub image: Image,
+    /// True when the file format stores display-referred sRGB-encoded values (PNG); false for
+    /// linear formats (EXR, HDR).
+    pub srgb_encoded: bool,
+}
+
+/// Exact sRGB electro-optical transfer function (IEC 61966-2-1), `[0,1] → [0,1]`.
+pub fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) }
+}
+
+fn file_kind(path: &Path) -> Option<&'static str> {
+    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+    match ext.as_str() {
+        "exr" => Some("exr"),
+        "png" => Some("png"),
+        "hdr" | "rgbe" | "pic" => Some("hdr"),
+        _ => None,
+    }
+}
+
+fn decode_err(path: &Path, msg: impl std::fmt::Display) -> Error {
+    Error::Parse { path: path.to_path_buf(), line: 0, col: 0, msg: format!("cannot decode image: {msg}") }
+}
+
+/// Reads an EXR, PNG or HDR image (chosen by extension) as stored, without any transfer
+/// function. See the module documentation.
+pub fn read_image(path: &Path) -> Result<Image> {
+    Ok(read_image_decoded(path)?.image)
+}
+
+/// Like [`read_image`], also telling whether the values are sRGB-encoded.
+pub fn read_image_decoded(path: &Path) -> Result<DecodedImage> {
+    if !path.exists() {
+        return Err(Error::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file")));
+    }
+    match file_kind(path) {
+        Some("exr") => Ok(DecodedImage { image: read_exr_rgb(path)?, srgb_encoded: false }),
+        Some("png") => Ok(DecodedImage { image: read_with_image_crate(path)?, srgb_encoded: true }),
+        Some("hdr") => Ok(DecodedImage { image: read_with_image_crate(path)?, srgb_encoded: false }),
+        _ => Err(Error::invalid(
+            format!("image file {}", path.display()),
+            "unsupported extension (expected .exr, .png or .hdr)",
+        )),
+    }
+}
+
+fn read_with_image_crate(path: &Path) -> Result<Image> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let dynimg = image::load_from_memory(&bytes).map_err(|e| decode_err(path, e))?;
+    let rgb = dynimg.to_rgb32f();
+    let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+    let data = rgb.pixels().map(|p| Spectrum::rgb(p.0[0], p.0[1], p.0[2])).collect();
+    Ok(Image { width: w, height: h, data })
+}
+
+/// Reads every channel of the first (or only) layers of an EXR file: `(width, height,
+/// channels)`, each channel `width * height` values, row 0 at the top. Channel names are the
+/// file's names (`albedo.R`); in multi-part files with named layers, `layer.channel`.
+pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, Vec<f32>>)> {
+    use exr::prelude::*;
+    if !path.exists() {
+        return Err(crate::error::Error::io(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        ));
+    }
+    let img = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| decode_err(path, e))?;
+    let mut out = BTreeMap::new();
+    let mut size: Option<(usize, usize)> = None;
+    for layer in &img.layer_data {
+        let (w, h) = (layer.size.width(), layer.size.height());
+        match size {
+            None => size = Some((w, h)),
+            Some(s) if s != (w, h) => {
+                return Err(decode_err(path, format!("layers of different sizes {s:?} and {:?}", (w, h))));
+            }
+            _ => {}
+        }
+        let prefix = layer.attributes.layer_name.as_ref().map(|n| n.to_string());
+        for ch in &layer.channel_data.list {
+            let name = match &prefix {
+                Some(p) if !p.is_empty() => format!("{p}.{}", ch.name),
+                _ => ch.name.to_string(),
+            };
+            let values: Vec<f32> = ch.sample_data.values_as_f32().collect();
+            if values.len() != w * h {
+                return Err(decode_err(
+                    path,
+                    format!("channel {name} has {} samples, expected {}", values.len(), w * h),
+                ));
+            }
+            out.insert(name, values);
+        }
+    }
+    let (w, h) = size.ok_or_else(|| decode_err(path, "no layers"))?;
+    Ok((w, h, out))
+}
+
+fn read_exr_rgb(path: &Path) -> Result<Image> {
+    let (w, h, ch) = read_exr_channels(path)?;
+    let get = |n: &str| ch.get(n);
+    let data: Vec<Spectrum> = match (get("R"), get("G"), get("B"), get("Y")) {
+        (Some(r), Some(g), Some(b), _) => (0..w * h).map(|i| Spectrum::rgb(r[i], g[i], b[i])).collect(),
+        (None, None, None, Some(y)) => y.iter().map(|&v| Spectrum::splat(v)).collect(),
+        _ => {
+            let names: Vec<&str> = ch.keys().map(|s| s.as_str()).collect();
+            return Err(decode_err(
+                path,
+                format!("expected channels R,G,B or Y, found [{}]", names.join(", ")),
+            ));
+        }
+    };
+    Ok(Image { width: w, height: h, data })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_curve_endpoints_and_knee() {
+        assert_eq!(srgb_to_linear(0.0), 0.0);
+        assert!((srgb_to_linear(1.0) - 1.0).abs() < 1e-6);
+        // Both branches meet at the knee (continuity to ~1e-7).
+        let a = 0.04045f32 / 12.92;
+        let b = ((0.04045f32 + 0.055) / 1.055).powf(2.4);
+        assert!((a - b).abs() < 1e-6);
+        // Mid grey 0.5 → 0.21404 (IEC 61966-2-1).
+        assert!((srgb_to_linear(0.5) - 0.214_041_14).abs() < 1e-6);
+    }
+
+    #[test]
+    fn png_8_and_16_bit_values_are_normalised_without_gamma() {
+        let dir = tempfile::tempdir().unwrap();
+        let p8 = dir.path().join("a.png");
+        let img8 = image::RgbImage::from_fn(3, 2, |x, y| image::Rgb([(x * 100) as u8, (y * 255) as u8, 7]));
+        img8.save(&p8).unwrap();
+        let d = read_image_decoded(&p8).unwrap();
+        assert!(d.srgb_encoded);
+        assert_eq!((d.image.width, d.image.height), (3, 2));
+        assert_eq!(d.image.get(2, 1), Spectrum::rgb(200.0 / 255.0, 1.0, 7.0 / 255.0));
+        let p16 = dir.path().join("b.png");
+        let img16 = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(2, 2, |x, y| {
+            image::Luma([(x + 2 * y) as u16 * 1000])
+        });
+        img16.save(&p16).unwrap();
+        let i = read_image(&p16).unwrap();
+        assert_eq!(i.get(1, 1), Spectrum::splat(3000.0 / 65535.0));
+    }
+
+    #[test]
+    fn garbage_png_is_a_parse_error_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("bad.png");
+        std::fs::write(&p, b"\x89PNG\r\n\x1a\nthis is not a png").unwrap();
+        let e = read_image(&p).unwrap_err();
+        assert!(matches!(e, Error::Parse { .. }), "{e}");
+        assert!(e.to_string().contains("bad.png"), "{e}");
+    }
+}

@@ -1,0 +1,304 @@
+//! Building a renderable [`Scene`] from a [`SceneDesc`]: the one place that validates ranges,
+//! resolves materials, flattens meshes into one triangle soup, builds the acceleration
+//! structure and the light sampler.
+
+use super::desc::{BsdfDesc, EmitterDesc, IntegratorDesc, SceneDesc, TextureDesc};
+use crate::accel::{Bvh, Hit};
+use crate::bsdf::{Bxdfs, Lambert};
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::geometry::{Ray, TriangleMesh};
+use crate::light::{Light, LightSampler, TriangleLight};
+use crate::math::{Frame, Vec2, Vec3};
+use crate::spectrum::Spectrum;
+
+/// Acceleration structure used by scenes.
+pub type Accel = Bvh;
+
+/// One shape of a built scene.
+#[derive(Clone, Debug)]
+pub struct Shape {
+    /// Identifier.
+    pub id: String,
+    /// World-space mesh.
+    pub mesh: TriangleMesh,
+    /// Material.
+    pub bsdf: BsdfDesc,
+    /// Emitted radiance when the shape is an area light.
+    pub emission: Option<Spectrum>,
+    /// Index of the first triangle of this shape in the scene's soup.
+    pub first_prim: u32,
+}
+
+/// Local geometry at a ray hit.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceInteraction {
+    /// Hit point.
+    pub p: Vec3,
+    /// Unit geometric normal (counter-clockwise winding side).
+    pub ng: Vec3,
+    /// Unit shading normal (interpolated vertex normal, or `ng`).
+    pub ns: Vec3,
+    /// Texture coordinates (Mitsuba convention), zero when the mesh has none.
+    pub uv: Vec2,
+    /// Shape index.
+    pub shape: u32,
+    /// Triangle index in the scene's soup.
+    pub prim: u32,
+    /// Ray parameter.
+    pub t: f32,
+}
+
+/// A scene ready to render.
+#[derive(Debug)]
+pub struct Scene {
+    /// Shapes.
+    pub shapes: Vec<Shape>,
+    /// Lights (one per emitting triangle, then the point lights).
+    pub lights: Vec<Light>,
+    /// Cameras.
+    pub cameras: Vec<Camera>,
+    /// Integrator settings from the description (defaults otherwise).
+    pub integrator: IntegratorDesc,
+    /// Warnings collected while building (dropped triangles...).
+    pub warnings: Vec<String>,
+    accel: Accel,
+    prim_shape: Vec<u32>,
+    prim_light: Vec<u32>,
+    light_sampler: Option<LightSampler>,
+    bounds: (Vec3, Vec3),
+}
+
+const NO_LIGHT: u32 = u32::MAX;
+
+impl Scene {
+    /// Builds a scene. Errors name the offending object and value.
+    pub fn build(desc: &SceneDesc) -> Result<Scene> {
+        let mut tris = Vec::new();
+        let mut prim_shape = Vec::new();
+        let mut prim_light = Vec::new();
+        let mut lights = Vec::new();
+        let mut shapes = Vec::new();
+        let mut lo = Vec3::splat(f32::MAX);
+        let mut hi = Vec3::splat(f32::MIN);
+        for (si, s) in desc.shapes.iter().enumerate() {
+            let m = &s.mesh;
+            if m.indices.is_empty() {
+                return Err(Error::invalid(format!("shape '{}'", s.id), "mesh has no triangles"));
+            }
+            for (k, p) in m.positions.iter().enumerate() {
+                if !p.is_finite() {
+                    return Err(Error::invalid(
+                        format!("shape '{}'", s.id),
+                        format!("vertex {k} is not finite: {p}"),
+                    ));
+                }
+                lo = lo.min(*p);
+                hi = hi.max(*p);
+            }
+            for (k, idx) in m.indices.iter().enumerate() {
+                if idx.iter().any(|&i| i as usize >= m.positions.len()) {
+                    return Err(Error::invalid(
+                        format!("shape '{}'", s.id),
+                        format!("triangle {k} refers to vertex {idx:?}, mesh has {}", m.positions.len()),
+                    ));
+                }
+            }
+            validate_bsdf(&s.id, &s.bsdf)?;
+            let emission = s.emitter.as_ref().map(|e| e.radiance);
+            if let Some(le) = emission {
+                if !le.is_finite() || le.0.iter().any(|&c| c < 0.0) {
+                    return Err(Error::invalid(
+                        format!("emitter of shape '{}'", s.id),
+                        format!("radiance {:?}", le.0),
+                    ));
+                }
+                if m.area() <= 0.0 {
+                    return Err(Error::invalid(format!("emitter of shape '{}'", s.id), "zero surface area"));
+                }
+            }
+            let first_prim = tris.len() as u32;
+            for k in 0..m.triangle_count() {
+                let tri = m.triangle(k);
+                let prim = tris.len() as u32;
+                tris.push(tri);
+                prim_shape.push(si as u32);
+                let mut light_idx = NO_LIGHT;
+                if let Some(le) = emission {
+                    if let Some(tl) = TriangleLight::new(tri, le, prim) {
+                        light_idx = lights.len() as u32;
+                        lights.push(Light::Triangle(tl));
+                    }
+                }
+                prim_light.push(light_idx);
+            }
+            shapes.push(Shape {
+                id: s.id.clone(),
+                mesh: m.clone(),
+                bsdf: s.bsdf.clone(),
+                emission,
+                first_prim,
+            });
+        }
+        for e in &desc.emitters {
+            match e {
+                EmitterDesc::Point { position, intensity } => {
+                    if !position.is_finite() || !intensity.is_finite() || intensity.0.iter().any(|&c| c < 0.0)
+                    {
+                        return Err(Error::invalid(
+                            "point emitter",
+                            format!("position {position}, intensity {:?}", intensity.0),
+                        ));
+                    }
+                    lights.push(Light::Point { position: *position, intensity: *intensity });
+                }
+            }
+        }
+        let mut cameras = Vec::new();
+        for s in &desc.sensors {
+            if !(s.fov_x_deg > 0.0 && s.fov_x_deg < 180.0) {
+                return Err(Error::invalid(
+                    format!("sensor '{}'", s.id),
+                    format!("fov must be in (0, 180) degrees, got {}", s.fov_x_deg),
+                ));
+            }
+            if s.width == 0 || s.height == 0 {
+                return Err(Error::invalid(
+                    format!("sensor '{}'", s.id),
+                    format!("film size {}x{}", s.width, s.height),
+                ));
+            }
+            if !s.to_world.is_finite() || s.to_world.determinant() == 0.0 {
+                return Err(Error::invalid(
+                    format!("sensor '{}'", s.id),
+                    "to_world is singular or not finite",
+                ));
+            }
+            cameras.push(Camera::new(s));
+        }
+        let light_sampler = LightSampler::new(&lights);
+        let accel = Accel::new(tris);
+        Ok(Scene {
+            shapes,
+            lights,
+            cameras,
+            integrator: desc.integrator.clone().unwrap_or_default(),
+            warnings: Vec::new(),
+            accel,
+            prim_shape,
+            prim_light,
+            light_sampler,
+            bounds: (lo, hi),
+        })
+    }
+
+    /// Axis-aligned bounds of all geometry.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        self.bounds
+    }
+
+    /// Closest hit.
+    #[inline]
+    pub fn intersect(&self, ray: &Ray) -> Option<SurfaceInteraction> {
+        self.accel.intersect(ray).map(|h| self.interaction(ray, &h))
+    }
+
+    /// Whether anything blocks the ray before `ray.tmax`.
+    #[inline]
+    pub fn occluded(&self, ray: &Ray) -> bool {
+        self.accel.occluded(ray)
+    }
+
+    /// Local geometry of a hit.
+    pub fn interaction(&self, ray: &Ray, h: &Hit) -> SurfaceInteraction {
+        let shape_idx = self.prim_shape[h.prim as usize];
+        let shape = &self.shapes[shape_idx as usize];
+        let local = (h.prim - shape.first_prim) as usize;
+        let m = &shape.mesh;
+        let [i0, i1, i2] = m.indices[local].map(|i| i as usize);
+        let (p0, p1, p2) = (m.positions[i0], m.positions[i1], m.positions[i2]);
+        let b0 = 1.0 - h.b1 - h.b2;
+        let ng = (p1 - p0).cross(p2 - p0).normalize();
+        let ns = if m.normals.is_empty() {
+            ng
+        } else {
+            let n = m.normals[i0] * b0 + m.normals[i1] * h.b1 + m.normals[i2] * h.b2;
+            let l = n.length();
+            if l > 0.0 { n / l } else { ng }
+        };
+        let uv =
+            if m.uvs.is_empty() { Vec2::ZERO } else { m.uvs[i0] * b0 + m.uvs[i1] * h.b1 + m.uvs[i2] * h.b2 };
+        SurfaceInteraction { p: ray.at(h.t), ng, ns, uv, shape: shape_idx, prim: h.prim, t: h.t }
+    }
+
+    /// Light attached to the hit triangle, if it emits.
+    #[inline]
+    pub fn light_at(&self, prim: u32) -> Option<(usize, &Light)> {
+        let l = self.prim_light[prim as usize];
+        (l != NO_LIGHT).then(|| (l as usize, &self.lights[l as usize]))
+    }
+
+    /// The power-proportional light sampler (`None` when the scene has no light).
+    pub fn light_sampler(&self) -> Option<&LightSampler> {
+        self.light_sampler.as_ref()
+    }
+
+    /// Shading frame and scattering model at a hit, for the outgoing world direction `wo`.
+    pub fn bsdf(&self, si: &SurfaceInteraction, wo: Vec3) -> (Frame, Bxdfs) {
+        let desc = &self.shapes[si.shape as usize].bsdf;
+        let (desc, flip) = match desc {
+            BsdfDesc::TwoSided(inner) => (inner.as_ref(), wo.dot(si.ng) < 0.0),
+            d => (d, false),
+        };
+        let n = if flip { -si.ns } else { si.ns };
+        let frame = Frame::from_normal(n);
+        let bxdf = match desc {
+            BsdfDesc::Diffuse { reflectance } => {
+                Bxdfs::Lambert(Lambert::new(eval_texture(reflectance, si.uv)))
+            }
+            BsdfDesc::TwoSided(_) => unreachable!("nested twosided rejected at build"),
+        };
+        (frame, bxdf)
+    }
+
+    /// Albedo (diffuse reflectance) of a shape at `uv`, when its BSDF is diffuse.
+    pub fn diffuse_albedo(&self, shape: u32, uv: Vec2) -> Option<Spectrum> {
+        let mut d = &self.shapes[shape as usize].bsdf;
+        if let BsdfDesc::TwoSided(inner) = d {
+            d = inner.as_ref();
+        }
+        match d {
+            BsdfDesc::Diffuse { reflectance } => Some(eval_texture(reflectance, uv)),
+            _ => None,
+        }
+    }
+}
+
+fn validate_bsdf(id: &str, b: &BsdfDesc) -> Result<()> {
+    match b {
+        BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(c) } => {
+            if !c.is_finite() || c.0.iter().any(|&v| v < 0.0) {
+                return Err(Error::invalid(
+                    format!("bsdf of shape '{id}'"),
+                    format!("reflectance {:?}", c.0),
+                ));
+            }
+            Ok(())
+        }
+        BsdfDesc::Diffuse { .. } => Ok(()),
+        BsdfDesc::TwoSided(inner) => match inner.as_ref() {
+            BsdfDesc::TwoSided(_) => {
+                Err(Error::invalid(format!("bsdf of shape '{id}'"), "twosided inside twosided"))
+            }
+            other => validate_bsdf(id, other),
+        },
+    }
+}
+
+/// Evaluates a texture at `uv`.
+pub fn eval_texture(t: &TextureDesc, uv: Vec2) -> Spectrum {
+    match t {
+        TextureDesc::Constant(c) => *c,
+        TextureDesc::Bitmap(b) => b.eval(uv),
+    }
+}

@@ -1,0 +1,169 @@
+//! Texture evaluation: constants and bitmaps looked up at a surface `uv`, exactly like
+//! Mitsuba 3's `bitmap` plugin (which uses Dr.Jit's `Texture`).
+//!
+//! Conventions (Mitsuba's internal uv, i.e. OBJ `v` already flipped at load):
+//! * texel (column `c`, row `r`) of a `W×H` image has its centre at `u = (c+0.5)/W`,
+//!   `v = (r+0.5)/H`; row 0 is the **top** row of the image file, so `v = 0` is the top.
+//! * **nearest**: texel `(floor(u W), floor(v H))`, then wrapped.
+//! * **bilinear**: `x = u W − 0.5`, `x0 = floor(x)`, `x1 = x0 + 1`, weight `x − x0`; the same
+//!   for `y`; each of the four integer texel indices is wrapped independently, then the four
+//!   texels are blended.
+//! * wrap modes act on integer texel indices: **clamp** to `[0, W−1]`; **repeat** `i mod W`;
+//!   **mirror** `i mod W` on even periods `floor(i/W)` and `W−1−(i mod W)` on odd ones (the
+//!   edge texel is repeated at each reflection).
+//!
+//! Values are whatever the [`BitmapDesc`] holds (already linear: sRGB decoding happens at load
+//! unless `raw`). Tests: unit tests below (hand-computed nearest/bilinear/wrap cases) and
+//! `tests/scene_load.rs` (the Cornell-box back wall against Mitsuba's albedo AOV).
+
+use crate::math::Vec2;
+use crate::scene::desc::{BitmapDesc, FilterType, TextureDesc, WrapMode};
+use crate::spectrum::Spectrum;
+
+/// Wraps an integer texel index into `[0, n)`.
+#[inline]
+pub fn wrap_index(i: i64, n: usize, mode: WrapMode) -> usize {
+    let n = n as i64;
+    let r = match mode {
+        WrapMode::Clamp => i.clamp(0, n - 1),
+        WrapMode::Repeat => i.rem_euclid(n),
+        WrapMode::Mirror => {
+            let m = i.rem_euclid(n);
+            if i.div_euclid(n) % 2 == 0 { m } else { n - 1 - m }
+        }
+    };
+    r as usize
+}
+
+impl TextureDesc {
+    /// Value at texture coordinates `uv` (Mitsuba's convention, see the module docs).
+    #[inline]
+    pub fn eval(&self, uv: Vec2) -> Spectrum {
+        match self {
+            TextureDesc::Constant(s) => *s,
+            TextureDesc::Bitmap(b) => b.eval(uv),
+        }
+    }
+
+    /// Mean value over the texture's domain (the constant itself, or the mean texel).
+    pub fn mean(&self) -> Spectrum {
+        match self {
+            TextureDesc::Constant(s) => *s,
+            TextureDesc::Bitmap(b) => {
+                let m = b.image.mean();
+                Spectrum::rgb(m[0] as f32, m[1] as f32, m[2] as f32)
+            }
+        }
+    }
+}
+
+impl BitmapDesc {
+    /// Looks up the bitmap at `uv` with its filter and wrap mode.
+    #[inline]
+    pub fn eval(&self, uv: Vec2) -> Spectrum {
+        let img = &*self.image;
+        let (w, h) = (img.width, img.height);
+        if w == 0 || h == 0 {
+            return Spectrum::ZERO;
+        }
+        if !(uv.x.is_finite() && uv.y.is_finite()) {
+            return Spectrum::ZERO;
+        }
+        let fetch = |x: i64, y: i64| img.get(wrap_index(x, w, self.wrap), wrap_index(y, h, self.wrap));
+        match self.filter {
+            FilterType::Nearest => {
+                let x = (uv.x * w as f32).floor() as i64;
+                let y = (uv.y * h as f32).floor() as i64;
+                fetch(x, y)
+            }
+            FilterType::Bilinear => {
+                let px = uv.x * w as f32 - 0.5;
+                let py = uv.y * h as f32 - 0.5;
+                let (fx, fy) = (px.floor(), py.floor());
+                let (wx1, wy1) = (px - fx, py - fy);
+                let (wx0, wy0) = (1.0 - wx1, 1.0 - wy1);
+                let (x0, y0) = (fx as i64, fy as i64);
+                let v00 = fetch(x0, y0);
+                let v10 = fetch(x0 + 1, y0);
+                let v01 = fetch(x0, y0 + 1);
+                let v11 = fetch(x0 + 1, y0 + 1);
+                (v00 * wx0 + v10 * wx1) * wy0 + (v01 * wx0 + v11 * wx1) * wy1
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image::Image;
+    use std::sync::Arc;
+
+    /// 4×2 image with texel (x, y) = (10 y + x, 0, 1).
+    fn bitmap(filter: FilterType, wrap: WrapMode) -> BitmapDesc {
+        let mut img = Image::new(4, 2);
+        for y in 0..2 {
+            for x in 0..4 {
+                img.set(x, y, Spectrum::rgb((10 * y + x) as f32, 0.0, 1.0));
+            }
+        }
+        BitmapDesc { image: Arc::new(img), filter, wrap, path: "mem".into() }
+    }
+
+    #[test]
+    fn wrap_modes_on_integer_indices() {
+        let n = 4;
+        let rep: Vec<usize> = (-5..9).map(|i| wrap_index(i, n, WrapMode::Repeat)).collect();
+        assert_eq!(rep, [3, 0, 1, 2, 3, 0, 1, 2, 3, 0, 1, 2, 3, 0]);
+        let cl: Vec<usize> = (-2..6).map(|i| wrap_index(i, n, WrapMode::Clamp)).collect();
+        assert_eq!(cl, [0, 0, 0, 1, 2, 3, 3, 3]);
+        // Mirror: ... 3 2 1 0 | 0 1 2 3 | 3 2 1 0 | 0 ...
+        let mi: Vec<usize> = (-5..9).map(|i| wrap_index(i, n, WrapMode::Mirror)).collect();
+        assert_eq!(mi, [3, 3, 2, 1, 0, 0, 1, 2, 3, 3, 2, 1, 0, 0]);
+    }
+
+    #[test]
+    fn texel_centres_return_texel_values() {
+        for filter in [FilterType::Nearest, FilterType::Bilinear] {
+            let b = bitmap(filter, WrapMode::Clamp);
+            for y in 0..2 {
+                for x in 0..4 {
+                    let uv = Vec2::new((x as f32 + 0.5) / 4.0, (y as f32 + 0.5) / 2.0);
+                    assert_eq!(b.eval(uv)[0], (10 * y + x) as f32, "{filter:?} ({x},{y})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bilinear_by_hand() {
+        // uv = (0.5, 0.5): px = 1.5, py = 0.5 → x0 = 1 (w .5), y0 = 0 (w .5):
+        // (1 + 2 + 11 + 12)/4 = 6.5.
+        let b = bitmap(FilterType::Bilinear, WrapMode::Clamp);
+        assert!((b.eval(Vec2::new(0.5, 0.5))[0] - 6.5).abs() < 1e-6);
+        // uv = (0.3, 0.6): px = 0.7 → x0 0 (w 0.3), x1 1 (w 0.7); py = 0.7 → y0 0 (0.3), y1 1 (0.7).
+        let v = 0.3 * (0.3 * 0.0 + 0.7 * 1.0) + 0.7 * (0.3 * 10.0 + 0.7 * 11.0);
+        assert!((b.eval(Vec2::new(0.3, 0.6))[0] - v).abs() < 1e-5);
+        // Blue is constant 1 → partition of unity.
+        assert!((b.eval(Vec2::new(0.3, 0.6))[2] - 1.0).abs() < 1e-6);
+        // Left of the first centre with clamp: the edge value.
+        assert_eq!(b.eval(Vec2::new(0.01, 0.25))[0], 0.0);
+        // Repeat: u = 0.0, v = 0.25 → px = -0.5: texels -1 (→3) and 0, half each: (3+0)/2.
+        let r = bitmap(FilterType::Bilinear, WrapMode::Repeat);
+        assert!((r.eval(Vec2::new(0.0, 0.25))[0] - 1.5).abs() < 1e-6);
+        // Mirror: texel -1 → 0, so (0+0)/2.
+        let m = bitmap(FilterType::Bilinear, WrapMode::Mirror);
+        assert!(m.eval(Vec2::new(0.0, 0.25))[0].abs() < 1e-6);
+    }
+
+    #[test]
+    fn nearest_wraps_outside_unit_square() {
+        let r = bitmap(FilterType::Nearest, WrapMode::Repeat);
+        assert_eq!(r.eval(Vec2::new(1.1, 0.25))[0], 0.0); // 4.4 → 4 → 0
+        assert_eq!(r.eval(Vec2::new(-0.1, 0.75))[0], 13.0); // -0.4 → -1 → 3; row 1
+        let m = bitmap(FilterType::Nearest, WrapMode::Mirror);
+        assert_eq!(m.eval(Vec2::new(1.1, 0.25))[0], 3.0);
+        let c = bitmap(FilterType::Nearest, WrapMode::Clamp);
+        assert_eq!(c.eval(Vec2::new(7.0, -3.0))[0], 3.0);
+    }
+}
