@@ -27,6 +27,8 @@ enum Command {
     Demo(cmd::demo::DemoArgs),
     /// Path-trace a Mitsuba 3 XML scene to OpenEXR (+ PNG preview).
     Render(cmd::render::RenderArgs),
+    /// Energy / reciprocity checks of BRDF lobes and normalisation fitting (method B).
+    Brdf(cmd::brdf::BrdfArgs),
 }
 
 fn main() {
@@ -35,6 +37,7 @@ fn main() {
     let result = match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Render(a) => cmd::render::run(a),
+        Command::Brdf(a) => cmd::brdf::run(a),
     };
     match result {
         Ok(code) => std::process::exit(code),

@@ -267,10 +267,21 @@ pub fn max_over_incidence(b: &impl Bxdf, thetas: &[f64], q: &Quadrature) -> (f64
     if thetas.len() < 2 {
         return (rs[0], thetas[0], rs[0]);
     }
+    // best at an end of the range and R falling towards the neighbour's midpoint: the end is
+    // the maximum (saves the golden-section search in the common normal-incidence case)
+    if i == 0 || i == thetas.len() - 1 {
+        let j = if i == 0 { 1 } else { i - 1 };
+        let m = 0.5 * (thetas[i] + thetas[j]);
+        if reflectance(b, m, q) <= rs[i] {
+            return (rs[i], thetas[i], rs[0]);
+        }
+    }
     let lo = thetas[i.saturating_sub(1)];
     let hi = thetas[(i + 1).min(thetas.len() - 1)];
     let (t, r) = golden_max(&|t| reflectance(b, t, q), lo, hi, 1e-4);
-    if r >= rs[i] { (r, t, rs[0]) } else { (rs[i], thetas[i], rs[0]) }
+    // prefer the grid point unless the refinement found a clearly larger value (R is flat at
+    // its maximum; differences of 1e-12 are rounding)
+    if r > rs[i] * (1.0 + 1e-12) { (r, t, rs[0]) } else { (rs[i], thetas[i], rs[0]) }
 }
 
 /// Settings of [`check`].
