@@ -16,10 +16,12 @@ pub mod blinn;
 pub mod lambert;
 pub mod lobe;
 pub mod lyon;
+pub mod microfacet;
 pub mod normexpr;
 pub mod phong;
 pub mod pow16;
 pub mod registry;
+pub mod rough_dielectric;
 pub mod schlick;
 
 use crate::math::{Vec2, Vec3};
@@ -29,6 +31,7 @@ pub use lambert::Lambert;
 pub use lyon::Lyon;
 pub use phong::Phong;
 pub use pow16::Pow16;
+pub use rough_dielectric::RoughDielectric;
 pub use schlick::Schlick;
 
 /// Which quantity is transported along the path.
@@ -102,6 +105,8 @@ pub enum Bxdfs {
     Lyon(Lyon),
     /// The pow16 approximant (method B, plugin `pow16`).
     Pow16(Pow16),
+    /// Rough dielectric interface, single scattering (Walter et al. 2007), any NDF.
+    RoughDielectric(RoughDielectric),
 }
 
 macro_rules! dispatch {
@@ -113,6 +118,7 @@ macro_rules! dispatch {
             Bxdfs::Schlick($b) => $e,
             Bxdfs::Lyon($b) => $e,
             Bxdfs::Pow16($b) => $e,
+            Bxdfs::RoughDielectric($b) => $e,
         }
     };
 }
