@@ -8,11 +8,13 @@
 //!   (refraction: the 1/η² radiance scaling) differ between the two.
 //! * [`Bxdfs`]: the runtime set (enum, `match` dispatch, no allocation per hit).
 //!
-//! Models: [`lambert`]; method B lobes [`phong`], [`blinn`], [`schlick`], [`lyon`], [`pow16`]
+//! Models: [`lambert`]; method B lobes [`phong`], [`blinn`], [`schlick`], [`lyon`], [`pow16`],
+//! [`conductor`]
 //! (shared machinery in [`lobe`], normalisation expressions in [`normexpr`], names and
 //! constructors in [`registry`]). Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
 
 pub mod blinn;
+pub mod conductor;
 pub mod lambert;
 pub mod lobe;
 pub mod lyon;
@@ -27,6 +29,7 @@ pub mod schlick;
 use crate::math::{Vec2, Vec3};
 use crate::spectrum::Spectrum;
 pub use blinn::Blinn;
+pub use conductor::RoughConductor;
 pub use lambert::Lambert;
 pub use lyon::Lyon;
 pub use phong::Phong;
@@ -107,6 +110,9 @@ pub enum Bxdfs {
     Pow16(Pow16),
     /// Rough dielectric interface, single scattering (Walter et al. 2007), any NDF.
     RoughDielectric(RoughDielectric),
+    /// Rough conductor, single scattering (method B's physically based reference, plugin
+    /// `microfacet_conductor`).
+    RoughConductor(RoughConductor),
 }
 
 macro_rules! dispatch {
@@ -119,6 +125,7 @@ macro_rules! dispatch {
             Bxdfs::Lyon($b) => $e,
             Bxdfs::Pow16($b) => $e,
             Bxdfs::RoughDielectric($b) => $e,
+            Bxdfs::RoughConductor($b) => $e,
         }
     };
 }

@@ -53,15 +53,9 @@ mod tests {
     #[test]
     fn chi2_reciprocity_consistency() {
         for form in [LobeForm::Phong, LobeForm::Blinn] {
-            for n in [1.0, 20.0, 120.0] {
+            for n in [1.0, 120.0] {
                 let b = Pow16::new(n, form, Pow16::paper_factor(n, PAPER_A, PAPER_B), Spectrum::ONE);
-                chi2_at(
-                    &format!("pow16_{}_n{n}", form.name()),
-                    &b,
-                    &[0.0, 0.5, 1.0, 1.45],
-                    24,
-                    if n >= 100.0 { 64 } else { 32 },
-                );
+                chi2_at(&format!("pow16_{}_n{n}", form.name()), &b, &[0.0, 0.9, 1.45], 12);
                 sample_consistency(&b, 0.7);
                 reciprocity(&b);
             }

@@ -5,7 +5,7 @@
 //! Two levels:
 //! * **Plugins** ([`PluginParams`], [`build_plugin`]): Mitsuba-XML style `<bsdf type="...">` with
 //!   named float / string / rgb parameters. Method-B plugins: `phong`, `blinn`, `schlick`, `lyon`,
-//!   `pow16` (and `diffuse` for Lambert), documented in `docs/scene-format.md`, section
+//!   `pow16`, `microfacet_conductor` (and `diffuse` for Lambert), documented in `docs/scene-format.md`, section
 //!   "Method-B lobe plugins".
 //! * **Models** ([`ModelInfo`], [`ModelSpec`]): the CLI's names (`pow16`, `blinn-exact`, ...),
 //!   each a plugin with some string parameters fixed, plus the one parameter a reflectance
@@ -16,9 +16,12 @@
 //! [`NormExpr`] in `n`, `A`, `B` (float parameters `A`, `B`, defaults 6 and 24.55).
 //! Tests: below (every model builds, bad names / values are refused with a clear message).
 
+use super::conductor::{ConductorFresnel, RoughConductor};
 use super::lobe::LobeForm;
+use super::microfacet::{Beckmann, Ggx, Ndfs};
 use super::normexpr::NormExpr;
 use super::pow16::{PAPER_A, PAPER_B};
+use super::rough_dielectric::Shadowing;
 use super::{Blinn, Bxdfs, Lambert, Lyon, Phong, Pow16, Schlick};
 use crate::error::{Error, Result};
 use crate::spectrum::Spectrum;
@@ -116,7 +119,8 @@ impl PluginParams {
 }
 
 /// The method-B plugin names (plus `diffuse`), in documentation order.
-pub const PLUGINS: &[&str] = &["diffuse", "phong", "blinn", "schlick", "lyon", "pow16"];
+pub const PLUGINS: &[&str] =
+    &["diffuse", "phong", "blinn", "schlick", "lyon", "pow16", "microfacet_conductor"];
 
 /// Builds a model from a plugin description.
 pub fn build_plugin(p: &PluginParams) -> Result<Bxdfs> {
@@ -166,6 +170,48 @@ pub fn build_plugin(p: &PluginParams) -> Result<Bxdfs> {
             let n = exponent(false)?;
             let c = p.norm(n, &|s| (s == "paper").then(|| Pow16::paper_factor(n, PAPER_A, PAPER_B)))?;
             Bxdfs::Pow16(Pow16::new(n, p.form(LobeForm::Blinn)?, c, ks()?))
+        }
+        "microfacet_conductor" => {
+            let alpha = p.float("alpha", Some(0.1))?;
+            if !(alpha > 0.0 && alpha <= 10.0) {
+                return Err(Error::invalid(p.what("alpha"), format!("must be in (0, 10], got {alpha}")));
+            }
+            let dist = p.string("distribution", "ggx")?;
+            let ndf = match dist.as_str() {
+                "ggx" => Ndfs::Ggx(Ggx::new(alpha as f32)?),
+                "beckmann" => Ndfs::Beckmann(Beckmann::new(alpha as f32)?),
+                _ => {
+                    return Err(Error::invalid(
+                        p.what("distribution"),
+                        format!("must be \"ggx\" or \"beckmann\", got \"{dist}\""),
+                    ));
+                }
+            };
+            let fresnel = match (p.values.contains_key("eta"), p.values.contains_key("k")) {
+                (false, false) => ConductorFresnel::Mirror,
+                (true, true) => ConductorFresnel::Complex {
+                    eta: p.spectrum("eta", Spectrum::ONE)?,
+                    k: p.spectrum("k", Spectrum::ZERO)?,
+                },
+                _ => {
+                    return Err(Error::invalid(
+                        p.what("eta/k"),
+                        "give both the real part 'eta' and the extinction 'k' (or neither: F = 1)",
+                    ));
+                }
+            };
+            let sh = p.string("shadowing", "separable")?;
+            let shadowing = match sh.as_str() {
+                "separable" => Shadowing::Separable,
+                "height_correlated" => Shadowing::HeightCorrelated,
+                _ => {
+                    return Err(Error::invalid(
+                        p.what("shadowing"),
+                        format!("must be \"separable\" or \"height_correlated\", got \"{sh}\""),
+                    ));
+                }
+            };
+            Bxdfs::RoughConductor(RoughConductor::new(ndf, fresnel, ks()?, shadowing))
         }
         other => {
             return Err(Error::invalid(
@@ -255,7 +301,34 @@ static MODELS: &[ModelInfo] = &[
         &[("form", "blinn"), ("normalisation", "paper")],
         "pow16 (Blinn form) · (n+6)/24.55, the paper's model",
     ),
+    conductor(
+        "conductor-ggx",
+        &[("distribution", "ggx")],
+        "microfacet conductor, GGX, F = 1 (physically based reference)",
+    ),
+    conductor(
+        "conductor-beckmann",
+        &[("distribution", "beckmann")],
+        "microfacet conductor, Beckmann, F = 1 (physically based reference)",
+    ),
 ];
+
+const fn conductor(
+    name: &'static str,
+    fixed: &'static [(&'static str, &'static str)],
+    description: &'static str,
+) -> ModelInfo {
+    ModelInfo {
+        name,
+        plugin: "microfacet_conductor",
+        fixed,
+        param: "alpha",
+        plugin_param: "alpha",
+        default_range: (0.02, 1.0),
+        log_scale: true,
+        description,
+    }
+}
 
 /// All models the CLI knows.
 pub fn models() -> &'static [ModelInfo] {
