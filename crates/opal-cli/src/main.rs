@@ -25,6 +25,8 @@ struct Cli {
 enum Command {
     /// Run every workflow on data shipped with Opal and write results to `opal-demo/`.
     Demo(cmd::demo::DemoArgs),
+    /// Virtual goniophotometer: plate with polished/rough faces, beam, detectors.
+    Gonio(cmd::gonio::GonioArgs),
     /// Path-trace a Mitsuba 3 XML scene to OpenEXR (+ PNG preview).
     Render(cmd::render::RenderArgs),
     /// Energy / reciprocity checks of BRDF lobes and normalisation fitting (method B).
@@ -36,6 +38,7 @@ fn main() {
     util::set_quiet(cli.quiet);
     let result = match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
+        Command::Gonio(a) => cmd::gonio::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Brdf(a) => cmd::brdf::run(a),
     };

@@ -121,7 +121,7 @@ mod tests {
         };
         // glam's look_at_rh looks along -z; flip x and z to get Mitsuba's +z forward, +x left
         let mut d = d;
-        d.to_world = d.to_world * Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
+        d.to_world *= Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
         let cam = Camera::new(&d);
         let r = cam.generate_ray(Vec2::new(32.0, 24.0));
         assert!((r.d - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);

@@ -20,6 +20,7 @@ pub mod bsdf;
 pub mod camera;
 pub mod error;
 pub mod geometry;
+pub mod gonio;
 pub mod image;
 pub mod integrator;
 pub mod light;

@@ -87,7 +87,8 @@ impl BitmapDesc {
                 let v10 = fetch(x0 + 1, y0);
                 let v01 = fetch(x0, y0 + 1);
                 let v11 = fetch(x0 + 1, y0 + 1);
-                (v00 * wx0 + v10 * wx1) * wy0 + (v01 * wx0 + v11 * wx1) * wy1
+                // Same weights and accumulation order as Dr.Jit's `eval_nonaccel`.
+                v00 * (wx0 * wy0) + v10 * (wx1 * wy0) + v01 * (wx0 * wy1) + v11 * (wx1 * wy1)
             }
         }
     }

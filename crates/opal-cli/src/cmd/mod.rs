@@ -2,4 +2,5 @@
 
 pub mod brdf;
 pub mod demo;
+pub mod gonio;
 pub mod render;

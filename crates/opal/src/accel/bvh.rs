@@ -43,26 +43,12 @@ pub const PAR_THRESHOLD: usize = 4096;
 /// `1 + 2γ₃` with `γₙ = n u / (1 − n u)`, `u = 2⁻²⁴` (pbrt-v4, robust box test).
 const BOX_FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 
-/// Maximum traversal stack depth (tree depth is bounded by the builder, see `MAX_DEPTH`).
-const STACK: usize = 64;
 /// Depth beyond which the builder makes a leaf whatever its size (never reached in practice:
 /// every split separates at least one triangle, SAH splits are far more balanced).
-const MAX_DEPTH: usize = STACK - 2;
-
-#[derive(Clone, Copy, Debug, Default)]
-#[repr(C)]
-struct Node {
-    min: [f32; 3],
-    /// Leaf: first triangle. Interior: index of the children pair.
-    first: u32,
-    max: [f32; 3],
-    /// Leaf: number of triangles (> 0). Interior: 0.
-    count: u32,
-}
-
-#[derive(Clone, Copy, Debug, Default)]
-#[repr(C, align(64))]
-struct NodePair([Node; 2]);
+const MAX_DEPTH: usize = 60;
+/// Traversal stack size: each 4-wide node pushes at most 3 entries and the 4-wide tree is no
+/// deeper than the binary one.
+const STACK: usize = 3 * MAX_DEPTH + 4;
 
 /// Axis-aligned box used during the build.
 #[derive(Clone, Copy, Debug)]
@@ -287,21 +273,77 @@ fn partition(refs: &mut [PrimRef], pred: impl Fn(&PrimRef) -> bool) -> usize {
     i
 }
 
-fn to_node(b: &Aabb, first: u32, count: u32) -> Node {
-    Node { min: b.min.to_array(), first, max: b.max.to_array(), count }
+/// An empty child slot: a box no ray enters.
+const EMPTY_CHILD: u32 = u32::MAX;
+
+/// 4-wide node, 128 bytes (two cache lines), children's boxes in SoA layout.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+struct Node4 {
+    /// Box minima per axis, per child.
+    lo: [[f32; 4]; 3],
+    /// Box maxima per axis, per child.
+    hi: [[f32; 4]; 3],
+    /// Interior child: node index. Leaf child: first triangle. Empty slot: `EMPTY_CHILD`.
+    child: [u32; 4],
+    /// Leaf child: number of triangles (> 0). Interior or empty: 0.
+    count: [u32; 4],
 }
 
-fn flatten(node: &BuildNode, pairs: &mut Vec<NodePair>, pair: usize, slot: usize) {
-    match node {
-        BuildNode::Leaf { bounds, start, count } => pairs[pair].0[slot] = to_node(bounds, *start, *count),
-        BuildNode::Interior { bounds, children } => {
-            let p = pairs.len();
-            pairs.push(NodePair::default());
-            pairs[pair].0[slot] = to_node(bounds, p as u32, 0);
-            flatten(&children[0], pairs, p, 0);
-            flatten(&children[1], pairs, p, 1);
+impl Node4 {
+    const EMPTY: Node4 = Node4 {
+        lo: [[f32::INFINITY; 4]; 3],
+        hi: [[f32::NEG_INFINITY; 4]; 3],
+        child: [EMPTY_CHILD; 4],
+        count: [0; 4],
+    };
+}
+
+fn half_area_of(n: &BuildNode) -> f32 {
+    n.bounds().half_area()
+}
+
+/// Collapses the binary build tree under `node` into 4-wide nodes (each node opens its
+/// largest-area interior child until it has 4 children); returns the index of its node.
+fn collapse(node: &BuildNode, nodes: &mut Vec<Node4>) -> u32 {
+    let idx = nodes.len();
+    nodes.push(Node4::EMPTY);
+    let mut kids: Vec<&BuildNode> = match node {
+        BuildNode::Interior { children, .. } => vec![&children[0], &children[1]],
+        BuildNode::Leaf { .. } => vec![node],
+    };
+    while kids.len() < 4 {
+        let open = kids
+            .iter()
+            .enumerate()
+            .filter(|(_, k)| matches!(k, BuildNode::Interior { .. }))
+            .max_by(|a, b| half_area_of(a.1).total_cmp(&half_area_of(b.1)))
+            .map(|(i, _)| i);
+        let Some(i) = open else { break };
+        let BuildNode::Interior { children, .. } = kids[i] else { unreachable!() };
+        kids[i] = &children[0];
+        kids.insert(i + 1, &children[1]);
+    }
+    let mut n = Node4::EMPTY;
+    for (slot, k) in kids.iter().enumerate() {
+        let b = k.bounds();
+        for a in 0..3 {
+            n.lo[a][slot] = b.min[a];
+            n.hi[a][slot] = b.max[a];
+        }
+        match k {
+            BuildNode::Leaf { start, count, .. } => {
+                n.child[slot] = *start;
+                n.count[slot] = *count;
+            }
+            BuildNode::Interior { .. } => {
+                n.child[slot] = collapse(k, nodes);
+                n.count[slot] = 0;
+            }
         }
     }
+    nodes[idx] = n;
+    idx as u32
 }
 
 /// Per-ray constants of the slab test.
@@ -309,7 +351,7 @@ fn flatten(node: &BuildNode, pairs: &mut Vec<NodePair>, pair: usize, slot: usize
 struct BoxRay {
     o: [f32; 3],
     inv: [f32; 3],
-    /// Whether each direction component is negative (then the near plane is `max`).
+    /// Whether each direction component is negative (then the near plane is the maximum).
     neg: [bool; 3],
 }
 
@@ -319,30 +361,45 @@ impl BoxRay {
         let inv = [1.0 / ray.d.x, 1.0 / ray.d.y, 1.0 / ray.d.z];
         BoxRay { o: ray.o.to_array(), inv, neg: [inv[0] < 0.0, inv[1] < 0.0, inv[2] < 0.0] }
     }
-    /// Entry distance if the ray overlaps the node's box within `(0, tmax)`.
+    /// Entry distances of the four child boxes and the mask of those overlapping `(0, tmax)`.
     #[inline(always)]
-    fn hit(&self, n: &Node, tmax: f32) -> Option<f32> {
-        let mut t0 = 0.0f32;
-        let mut t1 = tmax;
+    fn hit4(&self, n: &Node4, tmax: f32) -> ([f32; 4], u32) {
+        let mut t0 = [0.0f32; 4];
+        let mut t1 = [tmax; 4];
         for a in 0..3 {
-            let (near, far) = if self.neg[a] { (n.max[a], n.min[a]) } else { (n.min[a], n.max[a]) };
-            let tn = (near - self.o[a]) * self.inv[a];
-            let tf = (far - self.o[a]) * self.inv[a] * BOX_FAR_SCALE;
-            t0 = t0.max(tn);
-            t1 = t1.min(tf);
+            let (near, far) = if self.neg[a] { (&n.hi[a], &n.lo[a]) } else { (&n.lo[a], &n.hi[a]) };
+            for l in 0..4 {
+                let tn = (near[l] - self.o[a]) * self.inv[a];
+                let tf = (far[l] - self.o[a]) * self.inv[a] * BOX_FAR_SCALE;
+                t0[l] = t0[l].max(tn);
+                t1[l] = t1[l].min(tf);
+            }
         }
-        (t0 <= t1).then_some(t0)
+        let mut mask = 0;
+        for l in 0..4 {
+            mask |= ((t0[l] <= t1[l]) as u32) << l;
+        }
+        (t0, mask)
     }
 }
 
 /// SAH bounding volume hierarchy over a triangle soup (see the module docs).
 #[derive(Clone, Debug)]
 pub struct Bvh {
-    pairs: Vec<NodePair>,
+    nodes: Vec<Node4>,
+    bounds: (Vec3, Vec3),
     /// Triangles in leaf order.
     tris: Vec<[Vec3; 3]>,
     /// Input index of each triangle in `tris`.
     prims: Vec<u32>,
+}
+
+/// A pending child on the traversal stack.
+#[derive(Clone, Copy, Default)]
+struct Entry {
+    child: u32,
+    count: u32,
+    tnear: f32,
 }
 
 impl Bvh {
@@ -362,18 +419,20 @@ impl Bvh {
                 PrimRef { bounds: Aabb { min, max }, centroid: (min + max) * 0.5, idx: i as u32 }
             })
             .collect();
-        let mut pairs = vec![NodePair::default()];
-        if refs.is_empty() {
-            pairs[0].0[0] = to_node(&Aabb::EMPTY, 0, 0);
+        let mut nodes = Vec::new();
+        let bounds = if refs.is_empty() {
+            nodes.push(Node4::EMPTY);
+            (Vec3::INFINITY, Vec3::NEG_INFINITY)
         } else {
             let root = build_rec(&mut refs, 0, 0);
-            pairs.reserve(2 * tris.len() / MAX_LEAF.max(2));
-            flatten(&root, &mut pairs, 0, 0);
-            debug_assert!(root.bounds().min.x <= root.bounds().max.x || root.bounds().min.x.is_nan());
-        }
+            nodes.reserve(tris.len() / 4);
+            collapse(&root, &mut nodes);
+            let b = root.bounds();
+            (b.min, b.max)
+        };
         let prims: Vec<u32> = refs.iter().map(|r| r.idx).collect();
         let tris = prims.par_iter().map(|&i| tris[i as usize]).collect();
-        Bvh { pairs, tris, prims }
+        Bvh { nodes, bounds, tris, prims }
     }
 
     /// Number of triangles.
@@ -388,33 +447,28 @@ impl Bvh {
 
     /// Bounds `(min, max)` of all triangles (`min > max` when empty).
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        let r = &self.pairs[0].0[0];
-        (Vec3::from_array(r.min), Vec3::from_array(r.max))
+        self.bounds
     }
 
-    /// Number of nodes (interior and leaves).
+    /// Number of 4-wide nodes.
     pub fn node_count(&self) -> usize {
-        if self.is_empty() { 0 } else { 2 * self.pairs.len() - 1 }
+        self.nodes.len()
     }
 
     #[inline(always)]
     fn traverse<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
-        if self.tris.is_empty() {
-            return None;
-        }
         let br = BoxRay::new(ray);
         let tr = TriRay::new(ray);
         let mut tmax = ray.tmax;
         let mut best: Option<Hit> = None;
-        let root = &self.pairs[0].0[0];
-        br.hit(root, tmax)?;
-        let mut stack = [(0u32, 0.0f32); STACK];
+        let mut stack = [Entry::default(); STACK];
         let mut sp = 0usize;
-        let mut node = root;
+        // The current item: a node (count 0) or a leaf (count > 0).
+        let mut cur = Entry { child: 0, count: 0, tnear: 0.0 };
         loop {
-            if node.count > 0 {
-                let start = node.first as usize;
-                let end = start + node.count as usize;
+            if cur.count > 0 {
+                let start = cur.child as usize;
+                let end = start + cur.count as usize;
                 for i in start..end {
                     if let Some((t, b1, b2)) = tr.intersect(&self.tris[i], tmax) {
                         tmax = t;
@@ -425,37 +479,41 @@ impl Bvh {
                     }
                 }
             } else {
-                let pair = &self.pairs[node.first as usize].0;
-                let h0 = br.hit(&pair[0], tmax);
-                let h1 = br.hit(&pair[1], tmax);
-                match (h0, h1) {
-                    (Some(t0), Some(t1)) => {
-                        let (near, far, tfar) = if t0 <= t1 { (0, 1, t1) } else { (1, 0, t0) };
-                        stack[sp] = (2 * node.first + far, tfar);
+                let n = &self.nodes[cur.child as usize];
+                let (tn, mask) = br.hit4(n, tmax);
+                if mask != 0 {
+                    // Hit children sorted by entry distance (insertion sort, at most 4).
+                    let mut hits = [Entry::default(); 4];
+                    let mut h = 0;
+                    for l in 0..4 {
+                        if mask >> l & 1 != 0 {
+                            let e = Entry { child: n.child[l], count: n.count[l], tnear: tn[l] };
+                            let mut j = h;
+                            while j > 0 && hits[j - 1].tnear > e.tnear {
+                                hits[j] = hits[j - 1];
+                                j -= 1;
+                            }
+                            hits[j] = e;
+                            h += 1;
+                        }
+                    }
+                    // Farther ones on the stack (farthest deepest), visit the nearest now.
+                    for e in hits[1..h].iter().rev() {
+                        stack[sp] = *e;
                         sp += 1;
-                        node = &pair[near];
-                        continue;
                     }
-                    (Some(_), None) => {
-                        node = &pair[0];
-                        continue;
-                    }
-                    (None, Some(_)) => {
-                        node = &pair[1];
-                        continue;
-                    }
-                    (None, None) => {}
+                    cur = hits[0];
+                    continue;
                 }
             }
-            // Pop the next node still in range.
+            // Pop the next item still in range.
             loop {
                 if sp == 0 {
                     return best;
                 }
                 sp -= 1;
-                let (idx, tnear) = stack[sp];
-                if tnear <= tmax {
-                    node = &self.pairs[(idx >> 1) as usize].0[(idx & 1) as usize];
+                if stack[sp].tnear <= tmax {
+                    cur = stack[sp];
                     break;
                 }
             }
@@ -479,9 +537,8 @@ mod tests {
 
     #[test]
     fn node_layout() {
-        assert_eq!(std::mem::size_of::<Node>(), 32);
-        assert_eq!(std::mem::size_of::<NodePair>(), 64);
-        assert_eq!(std::mem::align_of::<NodePair>(), 64);
+        assert_eq!(std::mem::size_of::<Node4>(), 128);
+        assert_eq!(std::mem::align_of::<Node4>(), 64);
     }
 
     #[test]

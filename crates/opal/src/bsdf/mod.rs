@@ -24,6 +24,7 @@ pub mod phong;
 pub mod pow16;
 pub mod registry;
 pub mod rough_dielectric;
+pub mod rough_dielectric_ms;
 pub mod schlick;
 
 use crate::math::{Vec2, Vec3};

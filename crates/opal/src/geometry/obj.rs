@@ -106,6 +106,9 @@ fn tokens_with_cols(s: &str) -> impl Iterator<Item = (&str, usize)> {
 pub fn read_obj(path: &Path, flip_tex_coords: bool) -> Result<TriangleMesh> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     prescan(path, &text)?;
+    // `..Default::default()` is needed when tobj's optional `merging`/`reordering` features
+    // (which add fields) get enabled elsewhere in the dependency graph.
+    #[allow(clippy::needless_update)]
     let opts = tobj::LoadOptions {
         single_index: true,
         triangulate: true,

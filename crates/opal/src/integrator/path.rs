@@ -66,13 +66,13 @@ pub fn li(scene: &Scene, mut ray: Ray, rng: &mut Rng, s: &PathSettings) -> Spect
     // previous scattering vertex for MIS of emitter hits: (point, bsdf pdf, was delta)
     let mut prev: Option<(crate::math::Vec3, f32, bool)> = None;
     let sampler = scene.light_sampler();
-    loop {
-        let Some(si) = scene.intersect(&ray) else { break };
+    while let Some(si) = scene.intersect(&ray) {
         depth += 1;
         let wo = -ray.d;
         if let Some((li_idx, light)) = scene.light_at(si.prim) {
             let le = light.le(wo);
-            if !le.is_black() && !(depth == 1 && s.hide_emitters) {
+            let hidden = depth == 1 && s.hide_emitters;
+            if !le.is_black() && !hidden {
                 let w = match prev {
                     None | Some((_, _, true)) => 1.0,
                     Some((pp, pdf_bsdf, false)) => {

@@ -173,9 +173,11 @@ pub(crate) mod tests {
     }
 
     /// Normalisation, weak white furnace, χ² of visible sampling (both sides, when `chi2`),
-    /// G_hc vs G_sep. The χ² harness integrates the pdf over cells of equal solid angle with
-    /// Simpson's rule in cos θ, which cannot resolve lobes much narrower than a cell: callers
-    /// enable it for α ≥ 0.3 (narrower lobes are still covered by the quadrature checks).
+    /// G_hc vs G_sep. The χ² harness integrates the pdf over cells of equal solid angle in
+    /// (cos θ, φ), whose quadrature is weakest for narrow lobes at the pole: callers enable it
+    /// for α ≥ 0.3 (narrower lobes are still covered by the quadrature checks), and 48
+    /// sub-cells per axis keep its error (measured: 3·10⁻⁴ of the total at 16, 10⁻⁶ at 64 for
+    /// GGX α = 0.35 at θo = 1.3) below the Monte-Carlo noise of 3·10⁵ samples.
     pub fn check_ndf(name: &str, ndf: &(impl Ndf + Sync), furnace_tol: f64, chi2: bool) {
         let norm = hemi(|w| ndf.d(w.as_vec3()) as f64 * w.z);
         // quadrature error of the banded Gauss rule is < 1e-4 for the lobes tested (α ≥ 0.1)
@@ -199,15 +201,15 @@ pub(crate) mod tests {
         // up to θo = 1.3: beyond it the visible-normal pdf has a sharp cut (w·wm = 0) inside
         // cells that Simpson's rule integrates with a bias the χ² test detects at ~10⁶ samples
         // even for Heitz's exact GGX sampler, i.e. a limit of the harness, not of the sampler
-        let angles: &[f32] = if chi2 { &[0.0, 0.5, 1.0, 1.3] } else { &[] };
+        let angles: &[f32] = if chi2 { &[0.0, 0.9, 1.3] } else { &[] };
         for &theta_o in angles {
             for sign in [1.0f32, -1.0] {
                 let mut wo = spherical_direction(theta_o, 2.1);
                 wo.z *= sign;
                 let mut t = Chi2Test::new(&format!("{name}_vndf_{theta_o}_{sign}"), 300_000, 16);
-                t.num_tests = 8;
+                t.num_tests = 6;
                 t.seed = 7 + tests;
-                t.quad_subdiv = 32;
+                t.quad_subdiv = if theta_o > 1.2 { 48 } else { 16 };
                 tests += 1;
                 let r = t.run(&SphereFn {
                     sample: &|u| Some(ndf.sample_visible(wo, u)),

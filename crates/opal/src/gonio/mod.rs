@@ -1,0 +1,544 @@
+//! Virtual goniophotometer (method A, forward part): a collimated beam lights a plane-parallel
+//! plate whose faces are polished or rough; every photon is followed through all internal
+//! reflections until it leaves the plate, is absorbed or exceeds the interaction limit, and is
+//! counted by circular detectors on the reflected (R, z > 0) and transmitted (T, z < 0) side.
+//!
+//! Geometry (same as `../shared/reference/mitsuba/gonio`): plate normal +z, lit face at z = 0
+//! (outward normal +z), back face at z = −thickness (outward normal −z). The beam propagates
+//! along `k = (sin t cos φb, sin t sin φb, −cos t)` (incidence t, azimuth φb) with directions
+//! uniform in solid angle inside a cone of half-angle `divergence`. A detector at signed angle
+//! p in the plane of incidence has axis `(sin p cos φb, sin p sin φb, ±cos p)` (+ on side R,
+//! − on side T): the specular reflection and the undeviated transmission are both at p = +t.
+//! A photon leaving with direction d is counted by a detector of angular radius r when the
+//! angle between d (far field) — or between the line from the plate centre to the point where
+//! the photon crosses the detector sphere (finite plate, detectors at `distance_mm`) — and the
+//! axis is ≤ r.
+//!
+//! Faces: polished = exact unpolarised Fresnel (reflect with probability R, else refract),
+//! rough = [`RoughDielectric`] (single scattering, separable or height-correlated G) or
+//! [`RoughDielectricMs`] (multiple scattering on the micro-surface), sampled in
+//! [`TransportMode::Importance`] (power): the photon weight is multiplied by the sample weight,
+//! and what the single-scattering model loses is reported as `lost`. Absorption: the weight is
+//! multiplied by `exp(−μ L)` on every traversal of length L (the rest is `absorbed`).
+//!
+//! Output per detector: `value` = Σw/(N Ω) [1/sr] (intensity per incident power, cone
+//! average), its standard error, and `bsdf` = Σ(w/|cos θ|)/(N Ω) (BRDF/BTDF-like cone
+//! average). Totals R, T, lost, absorbed, fractions of the incident power.
+//!
+//! Determinism: photons are processed in fixed batches of [`BATCH`]; batch b of incidence i
+//! draws from `Rng::new(seed, i, b)`; each batch fills its own f64 accumulator and batches are
+//! merged in index order, so the result is identical for any number of threads (tested). The
+//! photon loop allocates nothing; a fitting workflow can call [`Gonio::run_plate`] many times
+//! with the same seed (common random numbers) and a different rough face.
+//!
+//! Tests: polished plate vs the closed form T = (1−R)²/(1−R²); thread-count independence;
+//! energy bookkeeping; `tests/gonio_reference.rs` compares with the Mitsuba reference data.
+
+mod detectors;
+
+pub use detectors::{Detector, DetectorGrid, DetectorLayout, Detectors, Side};
+
+use crate::bsdf::TransportMode;
+use crate::bsdf::microfacet::Ndfs;
+use crate::bsdf::rough_dielectric::{RoughDielectric, Shadowing};
+use crate::bsdf::rough_dielectric_ms::RoughDielectricMs;
+use crate::math::{Vec2, Vec3, fresnel_dielectric};
+use crate::sampling::{Rng, square_to_uniform_cone, square_to_uniform_disk_concentric};
+use rayon::prelude::*;
+
+/// Photons per batch (the unit of parallel work and of random-number streams).
+pub const BATCH: u64 = 1 << 14;
+
+/// How a rough face scatters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Scattering {
+    /// Single scattering, separable Smith G (Mitsuba's `roughdielectric`).
+    #[default]
+    Single,
+    /// Single scattering, height-correlated Smith G.
+    SingleHeightCorrelated,
+    /// Multiple scattering on the micro-surface (random walk, energy-conserving).
+    Multiple,
+}
+
+/// One face of the plate.
+#[derive(Clone, Debug)]
+pub enum Face {
+    /// Optically smooth (Fresnel).
+    Polished,
+    /// Rough, with its NDF and scattering model.
+    Rough {
+        /// Micro-facet normal distribution.
+        ndf: Ndfs,
+        /// Scattering model.
+        scattering: Scattering,
+    },
+}
+
+/// The sample: a plane-parallel plate.
+#[derive(Clone, Debug)]
+pub struct Plate {
+    /// Refractive index of the plate (outside: 1).
+    pub ior: f64,
+    /// Thickness in mm.
+    pub thickness_mm: f64,
+    /// Absorption coefficient μ in 1/mm (0 = clear).
+    pub absorption_per_mm: f64,
+    /// The lit face (z = 0).
+    pub front: Face,
+    /// The back face (z = −thickness).
+    pub back: Face,
+    /// Radius of a finite (disk-shaped) plate in mm; `None` = infinite plate. Photons reaching
+    /// the rim of a finite plate are counted as `lost` (the edge is not modelled).
+    pub radius_mm: Option<f64>,
+}
+
+/// The collimated beam.
+#[derive(Clone, Debug)]
+pub struct Beam {
+    /// Azimuth of the plane of incidence (radians).
+    pub azimuth: f64,
+    /// Half-angle of the cone of directions (radians; 0 = perfectly collimated).
+    pub divergence: f64,
+    /// Radius of the beam's circular cross-section in mm (matters for finite plates only).
+    pub aperture_radius_mm: f64,
+}
+
+/// Everything the simulator needs besides the plate.
+#[derive(Clone, Debug)]
+pub struct GonioSetup {
+    /// Beam.
+    pub beam: Beam,
+    /// Incidence angles (radians).
+    pub incidences: Vec<f64>,
+    /// Detector layout.
+    pub detectors: DetectorLayout,
+    /// Photons per incidence angle.
+    pub photons: u64,
+    /// Seed of the random streams.
+    pub seed: u64,
+    /// Interaction limit per photon (the rest is `lost_maxdepth`).
+    pub max_interactions: u32,
+}
+
+/// Per-incidence result.
+#[derive(Clone, Debug)]
+pub struct IncidenceResult {
+    /// Incidence angle (radians).
+    pub incidence: f64,
+    /// Per detector (same order as [`Detectors::list`]): value [1/sr].
+    pub value: Vec<f64>,
+    /// Standard error of `value`.
+    pub value_stderr: Vec<f64>,
+    /// BSDF-like cone average Σ(w/|cos θ|)/(N Ω) [1/sr].
+    pub bsdf: Vec<f64>,
+    /// Number of photons counted per detector.
+    pub hits: Vec<u64>,
+    /// Fraction of the incident power leaving on side R.
+    pub r: f64,
+    /// Fraction leaving on side T.
+    pub t: f64,
+    /// Fraction lost by the single-scattering model, at the rim of a finite plate, or after
+    /// the interaction limit.
+    pub lost: f64,
+    /// Fraction absorbed in the bulk.
+    pub absorbed: f64,
+    /// Mean number of surface interactions per photon.
+    pub mean_interactions: f64,
+    /// Photons that produced a non-finite weight or direction (must be 0).
+    pub bad_photons: u64,
+}
+
+/// Result of a run.
+#[derive(Clone, Debug)]
+pub struct GonioResult {
+    /// One entry per incidence angle.
+    pub incidences: Vec<IncidenceResult>,
+    /// Photons per incidence.
+    pub photons: u64,
+}
+
+/// Interaction model of one face, prepared for the photon loop.
+#[derive(Clone, Debug)]
+enum FaceModel {
+    Polished,
+    Single(RoughDielectric),
+    Multiple(RoughDielectricMs),
+}
+
+impl FaceModel {
+    fn new(face: &Face, ior: f32) -> crate::Result<Self> {
+        Ok(match face {
+            Face::Polished => FaceModel::Polished,
+            Face::Rough { ndf, scattering } => match scattering {
+                Scattering::Single => {
+                    FaceModel::Single(RoughDielectric::new(ndf.clone(), ior, Shadowing::Separable)?)
+                }
+                Scattering::SingleHeightCorrelated => {
+                    FaceModel::Single(RoughDielectric::new(ndf.clone(), ior, Shadowing::HeightCorrelated)?)
+                }
+                Scattering::Multiple => FaceModel::Multiple(RoughDielectricMs::new(ndf.clone(), ior)?),
+            },
+        })
+    }
+}
+
+/// The simulator: a validated setup with its detector look-up.
+#[derive(Clone, Debug)]
+pub struct Gonio {
+    setup: GonioSetup,
+    dets: Detectors,
+}
+
+#[derive(Clone)]
+struct Acc {
+    sum: Vec<f64>,
+    sum2: Vec<f64>,
+    sum_bsdf: Vec<f64>,
+    hits: Vec<u64>,
+    r: f64,
+    t: f64,
+    lost: f64,
+    absorbed: f64,
+    interactions: u64,
+    bad: u64,
+}
+
+impl Acc {
+    fn new(n: usize) -> Self {
+        Acc {
+            sum: vec![0.0; n],
+            sum2: vec![0.0; n],
+            sum_bsdf: vec![0.0; n],
+            hits: vec![0; n],
+            r: 0.0,
+            t: 0.0,
+            lost: 0.0,
+            absorbed: 0.0,
+            interactions: 0,
+            bad: 0,
+        }
+    }
+    fn merge(&mut self, o: &Acc) {
+        for i in 0..self.sum.len() {
+            self.sum[i] += o.sum[i];
+            self.sum2[i] += o.sum2[i];
+            self.sum_bsdf[i] += o.sum_bsdf[i];
+            self.hits[i] += o.hits[i];
+        }
+        self.r += o.r;
+        self.t += o.t;
+        self.lost += o.lost;
+        self.absorbed += o.absorbed;
+        self.interactions += o.interactions;
+        self.bad += o.bad;
+    }
+}
+
+/// Checks a plate's parameters (what the CLI and a fitting workflow must reject).
+pub fn validate_plate(p: &Plate) -> crate::Result<()> {
+    if !(p.ior.is_finite() && p.ior > 0.0) {
+        return Err(crate::Error::invalid("ior", format!("must be > 0, got {}", p.ior)));
+    }
+    if !(p.thickness_mm.is_finite() && p.thickness_mm > 0.0) {
+        return Err(crate::Error::invalid("thickness_mm", format!("must be > 0, got {}", p.thickness_mm)));
+    }
+    if !(p.absorption_per_mm.is_finite() && p.absorption_per_mm >= 0.0) {
+        return Err(crate::Error::invalid(
+            "absorption_per_mm",
+            format!("must be ≥ 0, got {}", p.absorption_per_mm),
+        ));
+    }
+    if let Some(r) = p.radius_mm {
+        if !(r.is_finite() && r > 0.0) {
+            return Err(crate::Error::invalid("radius_mm", format!("must be > 0, got {r}")));
+        }
+    }
+    let rough = matches!(p.front, Face::Rough { .. }) || matches!(p.back, Face::Rough { .. });
+    if rough && (p.ior - 1.0).abs() < 1e-4 {
+        return Err(crate::Error::invalid("ior", format!("a rough face needs ior ≠ 1, got {}", p.ior)));
+    }
+    Ok(())
+}
+
+impl Gonio {
+    /// Validates the setup and builds the detector look-up.
+    pub fn new(setup: GonioSetup) -> crate::Result<Self> {
+        let b = &setup.beam;
+        if !(b.divergence.is_finite() && (0.0..std::f64::consts::FRAC_PI_2).contains(&b.divergence)) {
+            return Err(crate::Error::invalid(
+                "divergence",
+                format!("must be in [0°, 90°), got {}°", b.divergence.to_degrees()),
+            ));
+        }
+        if !(b.aperture_radius_mm.is_finite() && b.aperture_radius_mm >= 0.0) {
+            return Err(crate::Error::invalid(
+                "aperture_radius_mm",
+                format!("must be ≥ 0, got {}", b.aperture_radius_mm),
+            ));
+        }
+        if !b.azimuth.is_finite() {
+            return Err(crate::Error::invalid("azimuth", "must be finite"));
+        }
+        for &t in &setup.incidences {
+            if !(t.is_finite() && (0.0..std::f64::consts::FRAC_PI_2).contains(&t)) {
+                return Err(crate::Error::invalid(
+                    "incidence",
+                    format!("must be in [0°, 90°), got {}°", t.to_degrees()),
+                ));
+            }
+        }
+        if setup.photons == 0 {
+            return Err(crate::Error::invalid("photons", "must be > 0"));
+        }
+        let dets = Detectors::new(&setup.detectors, setup.beam.azimuth)?;
+        Ok(Gonio { setup, dets })
+    }
+
+    /// The setup.
+    pub fn setup(&self) -> &GonioSetup {
+        &self.setup
+    }
+
+    /// The detectors (axes, sides, labels).
+    pub fn detectors(&self) -> &Detectors {
+        &self.dets
+    }
+
+    /// Simulates every incidence angle for `plate`.
+    pub fn run_plate(&self, plate: &Plate) -> crate::Result<GonioResult> {
+        self.run_plate_with_progress(plate, &|| {})
+    }
+
+    /// Same, calling `tick` once per finished batch (progress bars).
+    pub fn run_plate_with_progress(
+        &self,
+        plate: &Plate,
+        tick: &(dyn Fn() + Sync),
+    ) -> crate::Result<GonioResult> {
+        validate_plate(plate)?;
+        if self.dets.distance_mm().is_some() != plate.radius_mm.is_some() {
+            return Err(crate::Error::invalid(
+                "detectors.distance_mm",
+                "a finite plate (radius_mm) needs detectors at a distance, and detectors at a distance need a finite plate",
+            ));
+        }
+        let ior = plate.ior as f32;
+        let front = FaceModel::new(&plate.front, ior)?;
+        let back = FaceModel::new(&plate.back, ior)?;
+        let mut out = Vec::with_capacity(self.setup.incidences.len());
+        for (ii, &inc) in self.setup.incidences.iter().enumerate() {
+            out.push(self.run_incidence(plate, &front, &back, ii as u64, inc, tick));
+        }
+        Ok(GonioResult { incidences: out, photons: self.setup.photons })
+    }
+
+    fn run_incidence(
+        &self,
+        plate: &Plate,
+        front: &FaceModel,
+        back: &FaceModel,
+        stream: u64,
+        inc: f64,
+        tick: &(dyn Fn() + Sync),
+    ) -> IncidenceResult {
+        let n = self.setup.photons;
+        let nb = n.div_ceil(BATCH);
+        let ndet = self.dets.len();
+        // groups of batches bound the memory of the per-batch accumulators
+        let group = 64u64;
+        let mut total = Acc::new(ndet);
+        let mut g0 = 0;
+        while g0 < nb {
+            let g1 = (g0 + group).min(nb);
+            let accs: Vec<Acc> = (g0..g1)
+                .into_par_iter()
+                .map(|b| {
+                    let mut acc = Acc::new(ndet);
+                    let count = BATCH.min(n - b * BATCH);
+                    let mut rng = Rng::new(self.setup.seed, stream, b);
+                    for _ in 0..count {
+                        self.trace_photon(plate, front, back, inc, &mut rng, &mut acc);
+                    }
+                    tick();
+                    acc
+                })
+                .collect();
+            for a in &accs {
+                total.merge(a);
+            }
+            g0 = g1;
+        }
+        let nf = n as f64;
+        let mut value = vec![0.0; ndet];
+        let mut stderr = vec![0.0; ndet];
+        let mut bsdf = vec![0.0; ndet];
+        for i in 0..ndet {
+            let om = self.dets.solid_angle();
+            value[i] = total.sum[i] / (nf * om);
+            let mean = total.sum[i] / nf;
+            let var = (total.sum2[i] / nf - mean * mean).max(0.0) / nf;
+            stderr[i] = var.sqrt() / om;
+            bsdf[i] = total.sum_bsdf[i] / (nf * om);
+        }
+        IncidenceResult {
+            incidence: inc,
+            value,
+            value_stderr: stderr,
+            bsdf,
+            hits: total.hits,
+            r: total.r / nf,
+            t: total.t / nf,
+            lost: total.lost / nf,
+            absorbed: total.absorbed / nf,
+            mean_interactions: total.interactions as f64 / nf,
+            bad_photons: total.bad,
+        }
+    }
+
+    #[inline]
+    fn trace_photon(
+        &self,
+        plate: &Plate,
+        front: &FaceModel,
+        back: &FaceModel,
+        inc: f64,
+        rng: &mut Rng,
+        acc: &mut Acc,
+    ) {
+        let beam = &self.setup.beam;
+        let (sa, ca) = (beam.azimuth.sin() as f32, beam.azimuth.cos() as f32);
+        let (st, ct) = (inc.sin() as f32, inc.cos() as f32);
+        let k0 = Vec3::new(st * ca, st * sa, -ct);
+        let mut d = if beam.divergence > 0.0 {
+            let local = square_to_uniform_cone(rng.next_2d(), beam.divergence.cos() as f32);
+            // frame around k0: e1 in the plane of incidence, e2 normal to it
+            let e1 = Vec3::new(ct * ca, ct * sa, st);
+            let e2 = Vec3::new(-sa, ca, 0.0);
+            (e1 * local.x + e2 * local.y + k0 * local.z).normalize()
+        } else {
+            k0
+        };
+        let finite = plate.radius_mm.is_some();
+        let mut pos = Vec2::ZERO;
+        if finite {
+            // a point of the beam's circular cross-section, projected along d onto z = 0
+            let q = square_to_uniform_disk_concentric(rng.next_2d()) * beam.aperture_radius_mm as f32;
+            let e1 = Vec3::new(ct * ca, ct * sa, st);
+            let e2 = Vec3::new(-sa, ca, 0.0);
+            let p3 = e1 * q.x + e2 * q.y;
+            // move along d until z = 0
+            let s = -p3.z / d.z;
+            pos = Vec2::new(p3.x + s * d.x, p3.y + s * d.y);
+            if pos.length_squared() as f64 > plate.radius_mm.unwrap_or(0.0).powi(2) {
+                // the beam is wider than the plate: this photon passes by, unscattered
+                acc.t += 1.0;
+                let wf = 1.0;
+                let inv_cos = 1.0 / (d.z.abs() as f64).max(1e-6);
+                self.dets.for_each_hit(Side::T, d, Vec3::new(pos.x, pos.y, 0.0), |i| {
+                    acc.sum[i] += wf;
+                    acc.sum2[i] += wf * wf;
+                    acc.sum_bsdf[i] += wf * inv_cos;
+                    acc.hits[i] += 1;
+                });
+                return;
+            }
+        }
+        let thick = plate.thickness_mm as f32;
+        let mu = plate.absorption_per_mm as f32;
+        let mut w = 1.0f32;
+        let mut top = true; // the face the photon is at
+        for _ in 0..self.setup.max_interactions {
+            acc.interactions += 1;
+            let model = if top { front } else { back };
+            // local frame of the face: +z = outward normal; bottom face = rotation by π about x
+            let to_local = |v: Vec3| if top { v } else { Vec3::new(v.x, -v.y, -v.z) };
+            let wo = to_local(-d);
+            let wi = match model {
+                FaceModel::Polished => {
+                    let (r, _) = fresnel_dielectric(wo.z, plate.ior as f32);
+                    if rng.next_f32() < r {
+                        Vec3::new(-wo.x, -wo.y, wo.z)
+                    } else {
+                        let (n, eta) = if wo.z > 0.0 {
+                            (Vec3::Z, plate.ior as f32)
+                        } else {
+                            (-Vec3::Z, 1.0 / plate.ior as f32)
+                        };
+                        match crate::math::refract(wo, n, eta) {
+                            Some(t) => t,
+                            None => Vec3::new(-wo.x, -wo.y, wo.z),
+                        }
+                    }
+                }
+                FaceModel::Single(b) => {
+                    let uc = rng.next_f32();
+                    let u = rng.next_2d();
+                    match b.sample_dir(wo, uc, u, TransportMode::Importance) {
+                        Some(s) => {
+                            let w2 = w * s.weight;
+                            acc.lost += (w - w2) as f64;
+                            w = w2;
+                            s.wi
+                        }
+                        None => {
+                            acc.lost += w as f64;
+                            return;
+                        }
+                    }
+                }
+                FaceModel::Multiple(b) => match b.sample_dir(wo, rng) {
+                    Some(wi) => wi,
+                    None => {
+                        acc.lost += w as f64;
+                        return;
+                    }
+                },
+            };
+            let dn = to_local(wi); // the rotation is an involution
+            if !(dn.is_finite() && w.is_finite()) {
+                acc.bad += 1;
+                return;
+            }
+            d = dn;
+            let exits = if top { d.z > 0.0 } else { d.z < 0.0 };
+            if exits {
+                let side = if top { Side::R } else { Side::T };
+                let p3 =
+                    if finite { Vec3::new(pos.x, pos.y, if top { 0.0 } else { -thick }) } else { Vec3::ZERO };
+                match side {
+                    Side::R => acc.r += w as f64,
+                    Side::T => acc.t += w as f64,
+                }
+                let wf = w as f64;
+                let inv_cos = 1.0 / (d.z.abs() as f64).max(1e-6);
+                self.dets.for_each_hit(side, d, p3, |i| {
+                    acc.sum[i] += wf;
+                    acc.sum2[i] += wf * wf;
+                    acc.sum_bsdf[i] += wf * inv_cos;
+                    acc.hits[i] += 1;
+                });
+                return;
+            }
+            // traverse the plate
+            let len = thick / d.z.abs();
+            if mu > 0.0 {
+                let w2 = w * (-mu * len).exp();
+                acc.absorbed += (w - w2) as f64;
+                w = w2;
+            }
+            if finite {
+                pos += Vec2::new(d.x, d.y) * len;
+                if pos.length_squared() as f64 > plate.radius_mm.unwrap_or(0.0).powi(2) {
+                    acc.lost += w as f64;
+                    return;
+                }
+            }
+            top = !top;
+        }
+        acc.lost += w as f64;
+    }
+}
+
+#[cfg(test)]
+mod tests;
