@@ -391,3 +391,37 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
     eprintln!("demo: brdf plot -> {}", plot.display());
     Ok(json)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The demo's BRDF part end to end (≈ 10–30 s on 2 cores): run with
+    /// `cargo test -p opal-cli brdf_demo -- --ignored`.
+    #[test]
+    #[ignore]
+    fn brdf_demo_writes_plot_and_report() {
+        let dir = tempfile::tempdir().unwrap();
+        let v = demo(dir.path()).unwrap();
+        assert!(dir.path().join("brdf/pow16_reflectance.png").exists());
+        assert!(dir.path().join("brdf/report.json").exists());
+        let checks = v["checks"].as_array().unwrap();
+        assert_eq!(checks.len(), 3);
+        let paper = &checks[1];
+        assert!((paper["max_reflectance"].as_f64().unwrap() - 1.0016).abs() < 1e-4);
+        assert!(v["fit_norm"]["bounded"]["max_reflectance"].as_f64().unwrap() <= 1.0);
+    }
+
+    #[test]
+    fn ranges_parse_and_refuse_bad_values() {
+        assert_eq!(parse_range("1:1000", "x").unwrap(), (1.0, 1000.0));
+        assert_eq!(parse_range("30", "x").unwrap(), (30.0, 30.0));
+        assert!(parse_range("a:2", "x").is_err());
+        let spec = ModelSpec::new("pow16").unwrap();
+        assert_eq!(param_range(&spec, Some("n=2:50")).unwrap(), (2.0, 50.0));
+        assert_eq!(param_range(&spec, None).unwrap(), (1.0, 1000.0));
+        assert!(param_range(&spec, Some("n=50:2")).is_err());
+        assert!(param_range(&spec, Some("alpha=0.1:1")).is_err());
+        assert!(incidence("0:90").is_err() && incidence("10:5").is_err());
+    }
+}
