@@ -243,7 +243,7 @@ fn check(a: CheckArgs) -> Result<i32> {
     if a.points < 3 || a.incidence_points < 1 {
         bail!("--points must be ≥ 3 and --incidence-points ≥ 1");
     }
-    if !(a.tolerance >= 0.0) {
+    if a.tolerance.is_nan() || a.tolerance < 0.0 {
         bail!("--tolerance must be ≥ 0, got {}", a.tolerance);
     }
     let specs: Vec<ModelSpec> =
