@@ -29,6 +29,8 @@ enum Command {
     Gonio(cmd::gonio::GonioArgs),
     /// Path-trace a Mitsuba 3 XML scene to OpenEXR (+ PNG preview).
     Render(cmd::render::RenderArgs),
+    /// Energy / reciprocity checks of BRDF lobes and normalisation fitting (method B).
+    Brdf(cmd::brdf::BrdfArgs),
 }
 
 fn main() {
@@ -38,6 +40,7 @@ fn main() {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Gonio(a) => cmd::gonio::run(a),
         Command::Render(a) => cmd::render::run(a),
+        Command::Brdf(a) => cmd::brdf::run(a),
     };
     match result {
         Ok(code) => std::process::exit(code),

@@ -8,17 +8,35 @@
 //!   (refraction: the 1/η² radiance scaling) differ between the two.
 //! * [`Bxdfs`]: the runtime set (enum, `match` dispatch, no allocation per hit).
 //!
-//! Models: [`lambert`]. Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
+//! Models: [`lambert`]; method B lobes [`phong`], [`blinn`], [`schlick`], [`lyon`], [`pow16`],
+//! [`conductor`]
+//! (shared machinery in [`lobe`], normalisation expressions in [`normexpr`], names and
+//! constructors in [`registry`]). Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
 
+pub mod blinn;
+pub mod conductor;
 pub mod lambert;
+pub mod lobe;
+pub mod lyon;
 pub mod microfacet;
+pub mod normexpr;
+pub mod phong;
+pub mod pow16;
+pub mod registry;
 pub mod rough_dielectric;
 pub mod rough_dielectric_ms;
+pub mod schlick;
 
 use crate::math::{Vec2, Vec3};
 use crate::spectrum::Spectrum;
+pub use blinn::Blinn;
+pub use conductor::RoughConductor;
 pub use lambert::Lambert;
+pub use lyon::Lyon;
+pub use phong::Phong;
+pub use pow16::Pow16;
 pub use rough_dielectric::RoughDielectric;
+pub use schlick::Schlick;
 
 /// Which quantity is transported along the path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -81,15 +99,34 @@ pub trait Bxdf {
 pub enum Bxdfs {
     /// One-sided Lambertian reflector (Mitsuba `diffuse`).
     Lambert(Lambert),
+    /// Phong lobe `cos^n(V·R)` (method B, plugin `phong`).
+    Phong(Phong),
+    /// Blinn–Phong lobe `cos^n(N·H)` (method B, plugin `blinn`).
+    Blinn(Blinn),
+    /// Schlick's rational lobe (method B, plugin `schlick`).
+    Schlick(Schlick),
+    /// Lyon's approximation (method B, plugin `lyon`).
+    Lyon(Lyon),
+    /// The pow16 approximant (method B, plugin `pow16`).
+    Pow16(Pow16),
     /// Rough dielectric interface, single scattering (Walter et al. 2007), any NDF.
     RoughDielectric(RoughDielectric),
+    /// Rough conductor, single scattering (method B's physically based reference, plugin
+    /// `microfacet_conductor`).
+    RoughConductor(RoughConductor),
 }
 
 macro_rules! dispatch {
     ($self:ident, $b:ident => $e:expr) => {
         match $self {
             Bxdfs::Lambert($b) => $e,
+            Bxdfs::Phong($b) => $e,
+            Bxdfs::Blinn($b) => $e,
+            Bxdfs::Schlick($b) => $e,
+            Bxdfs::Lyon($b) => $e,
+            Bxdfs::Pow16($b) => $e,
             Bxdfs::RoughDielectric($b) => $e,
+            Bxdfs::RoughConductor($b) => $e,
         }
     };
 }
