@@ -510,8 +510,11 @@ pub fn check(spec: &ModelSpec, cfg: &CheckConfig) -> Result<CheckReport> {
     // Monte Carlo cross-checks: at the argmax and at both ends of the range
     let first_theta = thetas[0];
     let mut points = vec![(best.param, best.incidence_deg.to_radians())];
-    points.push((params[0], first_theta));
-    points.push((*params.last().unwrap(), *thetas.last().unwrap()));
+    for p in [(params[0], first_theta), (*params.last().unwrap(), *thetas.last().unwrap())] {
+        if !points.contains(&p) {
+            points.push(p);
+        }
+    }
     let monte_carlo: Vec<McCheck> = points
         .iter()
         .enumerate()
