@@ -6,5 +6,6 @@
 //! * method C — de-lighting (diffuse albedo textures from multi-view HDR photos).
 #![warn(missing_docs)]
 
+pub mod export;
 pub mod measured;
 pub mod ndf_fit;

@@ -286,7 +286,7 @@ mod tests {
         let m = p(GOOD).unwrap();
         assert_eq!(m.curves.len(), 4);
         assert_eq!(m.incidences().len(), 2);
-        assert_eq!(m.detector_angles().len(), 3);
+        assert_eq!(m.detector_angles().len(), 4); // −10, 0, 10, 30
         assert!(m.has_stderr);
         assert_eq!(m.curves[0].side, Side::R);
         assert_eq!(m.curves[0].value, vec![0.1, 0.2]);

@@ -238,7 +238,7 @@ impl Problem {
         let na = angles.len();
         let mut points = Vec::new();
         let mut all = Vec::new();
-        for (ci, c) in measured.curves.iter().enumerate() {
+        for c in measured.curves.iter() {
             let inc = incidences.iter().position(|&t| t == c.incidence).expect("incidence listed");
             let off = if c.side == Side::R { 0 } else { na };
             let floor = setup.floor_rel * c.max();
