@@ -187,7 +187,7 @@ pub struct FamilyFit {
     pub alpha_initial: f64,
     /// Fitted α.
     pub alpha: f64,
-    /// Objective at the optimum (common random numbers).
+    /// Objective at the optimum (common random numbers; mean of ((s − m)² − σs²)/m²).
     pub objective: f64,
     /// Simulations run for this family (probe included).
     pub evaluations: u64,
@@ -345,9 +345,19 @@ impl Problem {
         }
     }
 
+    /// The objective: mean over the used points of `((s − m)² − σs²)/m²`. Subtracting the
+    /// simulation's own variance σs² makes it an unbiased estimate of the squared relative
+    /// misfit of the *expected* simulation (plus a constant); without it the Monte-Carlo
+    /// variance, which grows with the simulated value, pulls α towards dimmer lobes.
     fn objective(&self, ndf: Ndfs) -> opal::Result<f64> {
         let res = self.simulate(ndf, self.setup.seed, self.setup.photons)?;
-        Ok(self.evaluate(res).rms)
+        let mut acc = 0.0;
+        for p in &self.points {
+            let r = &res.incidences[p.inc];
+            let (s, ss) = (r.value[p.det], r.value_stderr[p.det]);
+            acc += ((s - p.m).powi(2) - ss * ss) / (p.m * p.m);
+        }
+        Ok(acc / self.points.len() as f64)
     }
 
     /// Half width at half maximum (radians) of the transmitted lobe of the smallest incidence,

@@ -1,5 +1,6 @@
 //! One module per subcommand.
 
 pub mod demo;
+pub mod fit_ndf;
 pub mod gonio;
 pub mod render;
