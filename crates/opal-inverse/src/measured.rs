@@ -244,6 +244,26 @@ impl Measured {
         Ok(Measured { path: path.to_path_buf(), curves, has_stderr: i_err.is_some() })
     }
 
+    /// Curves from a plane-of-incidence simulation (synthetic measurements for round trips):
+    /// detectors with a zero value are kept (they carry no information but are valid).
+    pub fn from_gonio(gonio: &opal::gonio::Gonio, res: &opal::gonio::GonioResult, name: &str) -> Self {
+        let dets = gonio.detectors().list();
+        let mut curves = Vec::new();
+        for r in &res.incidences {
+            for side in [Side::R, Side::T] {
+                let mut c =
+                    Curve { incidence: r.incidence, side, detector: vec![], value: vec![], stderr: vec![] };
+                for (k, d) in dets.iter().enumerate().filter(|(_, d)| d.side == side) {
+                    c.detector.push(d.angle_deg.to_radians());
+                    c.value.push(r.value[k]);
+                    c.stderr.push(r.value_stderr[k]);
+                }
+                curves.push(c);
+            }
+        }
+        Measured { path: PathBuf::from(name), curves, has_stderr: true }
+    }
+
     /// Distinct incidence angles (radians), ascending.
     pub fn incidences(&self) -> Vec<f64> {
         let mut v: Vec<f64> = self.curves.iter().map(|c| c.incidence).collect();

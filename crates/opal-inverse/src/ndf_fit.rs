@@ -6,13 +6,17 @@
 //! ([`Family`]: Beckmann = Gauss-like slopes, GGX = Cauchy-like slopes) of roughness α, with
 //! single or multiple scattering on the micro-surface.
 //!
-//! Objective: the RMS of the relative residuals `(s − m)/m` over the measured points whose value
-//! is at least `floor_rel` × the maximum of their curve (the set is fixed by the measurement, so
-//! the objective does not jump when the simulation changes). Relative residuals weight a lobe's
-//! flanks as much as its peak (an absolute RMS fits only the peaks); the floor keeps out the
-//! far tails, where the relative noise of both the measurement and the simulation explodes. The
-//! Monte-Carlo noise level reported beside it is the RMS of the combined relative standard
-//! error `sqrt(σs² + σm²)/m` over the same points, so `rms / noise ≈ 1` means "fits within noise".
+//! Objective: over the measured points whose value is at least `floor_rel` × the maximum of
+//! their curve (the set is fixed by the measurement, so it does not change between evaluations),
+//! `Σ ((s − m)² − σs²)/m / Σ m`: the squared relative residual `((s − m)/m)²` weighted by m
+//! (Pearson's χ² form). Relative residuals weight a lobe's flanks as much as its peak (an
+//! absolute RMS fits only the peaks); the weight m is the inverse relative variance of a
+//! photon count (`Var s ∝ s`), so photon-starved dim points do not dominate the noise of the
+//! objective; subtracting the simulation's variance σs² removes the Monte-Carlo bias
+//! (`E (s − m)² = (E s − m)² + Var s`, and Var s grows with s). The quality reported beside it is
+//! the plain RMS relative residual and the Monte-Carlo noise level, the RMS of the combined
+//! relative standard error `sqrt(σs² + σm²)/m` over the same points, so `rms / noise ≈ 1` means
+//! "fits within noise".
 //!
 //! Smoothness: every evaluation uses the same seed (common random numbers: batch b of
 //! incidence i always draws from `Rng::new(seed, i, b)`), so the objective varies smoothly with
@@ -187,7 +191,7 @@ pub struct FamilyFit {
     pub alpha_initial: f64,
     /// Fitted α.
     pub alpha: f64,
-    /// Objective at the optimum (common random numbers; mean of ((s − m)² − σs²)/m²).
+    /// Objective at the optimum (common random numbers; Σ((s − m)² − σs²)/m / Σm).
     pub objective: f64,
     /// Simulations run for this family (probe included).
     pub evaluations: u64,
@@ -345,19 +349,23 @@ impl Problem {
         }
     }
 
-    /// The objective: mean over the used points of `((s − m)² − σs²)/m²`. Subtracting the
-    /// simulation's own variance σs² makes it an unbiased estimate of the squared relative
-    /// misfit of the *expected* simulation (plus a constant); without it the Monte-Carlo
-    /// variance, which grows with the simulated value, pulls α towards dimmer lobes.
+    /// The objective: `Σ ((s − m)² − σs²)/m / Σ m` over the used points, i.e. the squared
+    /// relative residual `((s − m)/m)²` weighted by `m` (Pearson's χ² form). The weight is the
+    /// inverse of the relative variance of a photon-count estimate (`Var s ∝ s`), so the
+    /// dim, photon-starved points do not dominate the objective's noise; subtracting the
+    /// simulation's own variance σs² makes it an unbiased estimate of the misfit of the
+    /// *expected* simulation (plus a constant): without it the Monte-Carlo variance, which
+    /// grows with the simulated value, pulls α towards dimmer lobes.
     fn objective(&self, ndf: Ndfs) -> opal::Result<f64> {
         let res = self.simulate(ndf, self.setup.seed, self.setup.photons)?;
-        let mut acc = 0.0;
+        let (mut acc, mut wsum) = (0.0, 0.0);
         for p in &self.points {
             let r = &res.incidences[p.inc];
             let (s, ss) = (r.value[p.det], r.value_stderr[p.det]);
-            acc += ((s - p.m).powi(2) - ss * ss) / (p.m * p.m);
+            acc += ((s - p.m).powi(2) - ss * ss) / p.m;
+            wsum += p.m;
         }
-        Ok(acc / self.points.len() as f64)
+        Ok(acc / wsum)
     }
 
     /// Half width at half maximum (radians) of the transmitted lobe of the smallest incidence,

@@ -62,6 +62,9 @@ pub struct FitNdfArgs {
     /// Angular radius of the detectors (degrees).
     #[arg(long)]
     pub detector_radius_deg: Option<f64>,
+    /// Maximum optimiser iterations per family (fewer → the fit may not converge: exit 1).
+    #[arg(long, default_value_t = 40)]
+    pub max_iters: u64,
     /// Points below this fraction of their curve's maximum are left out of the objective.
     #[arg(long, default_value_t = 0.01)]
     pub floor: f64,
@@ -146,7 +149,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, Vec<Family>)> {
         max_interactions: cfg.setup.max_interactions,
         fit_on,
         floor_rel: a.floor,
-        max_iters: 40,
+        max_iters: a.max_iters.max(1),
     };
     let problem = Problem::new(measured, setup).map_err(|e| anyhow!("{e}"))?;
     Ok((problem, families))
@@ -375,6 +378,7 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
         scattering: "single".into(),
         fit_on: "both".into(),
         photons: Some(30_000),
+        max_iters: 40,
         entry: Some("rough".into()),
         floor: 0.01,
         ..Default::default()
