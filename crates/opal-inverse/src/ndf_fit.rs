@@ -131,6 +131,8 @@ pub struct FitSetup {
     pub beam: Beam,
     /// Angular radius of the detectors (radians).
     pub detector_radius: f64,
+    /// Distance of the detectors in mm (finite plates, `plate.radius_mm`); `None` = far field.
+    pub detector_distance_mm: Option<f64>,
     /// Photons per incidence per evaluation.
     pub photons: u64,
     /// Seed of the common random numbers.
@@ -233,7 +235,7 @@ impl Problem {
             detectors: DetectorLayout {
                 grid: DetectorGrid::PlaneOfIncidence { angles: angles.clone() },
                 radius: setup.detector_radius,
-                distance_mm: None,
+                distance_mm: setup.detector_distance_mm,
             },
             photons: setup.photons,
             seed: setup.seed,

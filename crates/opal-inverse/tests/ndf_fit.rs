@@ -20,6 +20,7 @@ fn setup(rough_front: bool, photons: u64) -> FitSetup {
         scattering: Scattering::Single,
         beam: Beam { azimuth: 0.0, divergence: 0.5f64.to_radians(), aperture_radius_mm: 1.0 },
         detector_radius: 1f64.to_radians(),
+        detector_distance_mm: None,
         photons,
         seed: 7,
         max_interactions: 200,

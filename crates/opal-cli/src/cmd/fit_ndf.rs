@@ -144,6 +144,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, Vec<Family>)> {
         scattering,
         beam: cfg.setup.beam,
         detector_radius: cfg.setup.detectors.radius,
+        detector_distance_mm: cfg.setup.detectors.distance_mm,
         photons,
         seed: cfg.setup.seed,
         max_interactions: cfg.setup.max_interactions,
