@@ -25,6 +25,8 @@ struct Cli {
 enum Command {
     /// Run every workflow on data shipped with Opal and write results to `opal-demo/`.
     Demo(cmd::demo::DemoArgs),
+    /// Fit the micro-facet NDF of a plate's rough face to measured curves; export its BSDF.
+    FitNdf(cmd::fit_ndf::FitNdfArgs),
     /// Virtual goniophotometer: plate with polished/rough faces, beam, detectors.
     Gonio(cmd::gonio::GonioArgs),
     /// Path-trace a Mitsuba 3 XML scene to OpenEXR (+ PNG preview).
@@ -38,6 +40,7 @@ fn main() {
     util::set_quiet(cli.quiet);
     let result = match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
+        Command::FitNdf(a) => cmd::fit_ndf::run(a),
         Command::Gonio(a) => cmd::gonio::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Brdf(a) => cmd::brdf::run(a),

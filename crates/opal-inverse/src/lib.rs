@@ -7,3 +7,6 @@
 #![warn(missing_docs)]
 
 pub mod brdf_energy;
+pub mod export;
+pub mod measured;
+pub mod ndf_fit;

@@ -2,5 +2,6 @@
 
 pub mod brdf;
 pub mod demo;
+pub mod fit_ndf;
 pub mod gonio;
 pub mod render;

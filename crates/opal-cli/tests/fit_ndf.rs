@@ -1,0 +1,125 @@
+//! `opal fit-ndf` end to end: bad input → exit 2 with a message naming the problem; a small
+//! real fit writes every output.
+
+use std::path::Path;
+use std::process::Command;
+
+fn opal() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_opal"))
+}
+
+fn run_bad(dir: &Path, name: &str, csv: &str, needle: &str) {
+    let p = dir.join(format!("{name}.csv"));
+    std::fs::write(&p, csv).unwrap();
+    let out_dir = dir.join(format!("out_{name}"));
+    let o = opal().args(["fit-ndf"]).arg(&p).arg("-o").arg(&out_dir).arg("--quiet").output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{name}: {err}");
+    assert!(err.contains(needle), "{name}: expected {needle:?} in {err}");
+    assert!(!out_dir.join("fit.json").exists(), "{name}: no output on bad input");
+}
+
+#[test]
+fn bad_input_exits_2() {
+    let d = tempfile::tempdir().unwrap();
+    let h = "incidence_deg,side,detector_deg,value\n";
+    run_bad(d.path(), "missing", "incidence_deg,side,value\n0,T,1\n", "missing column \"detector_deg\"");
+    run_bad(d.path(), "nonnum", &format!("{h}0,T,0,1\n0,T,1,x1\n"), "row 3");
+    run_bad(d.path(), "dup", &format!("{h}0,T,0,1\n0,T,0,2\n"), "duplicated");
+    run_bad(d.path(), "emptyside", &format!("{h}0,T,0,1\n0,R,0,1\n30,T,30,1\n"), "empty side");
+    run_bad(d.path(), "angle", &format!("{h}0,T,91,1\n"), "detector_deg");
+    run_bad(d.path(), "zeros", &format!("{h}0,T,0,0\n0,T,1,0\n"), "≤ 0");
+    // a side requested that the file does not have
+    let p = d.path().join("t_only.csv");
+    std::fs::write(&p, format!("{h}0,T,0,1\n0,T,1,0.5\n")).unwrap();
+    let o =
+        opal().arg("fit-ndf").arg(&p).args(["--fit-on", "R", "-o"]).arg(d.path().join("o")).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("empty side"));
+    let o = opal()
+        .arg("fit-ndf")
+        .arg(&p)
+        .args(["--family", "lorentz", "-o"])
+        .arg(d.path().join("o"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn small_fit_writes_outputs() {
+    // subset of the Mitsuba reference (GGX α = 0.15, rough entry): 3 incidences, every 2nd
+    // detector, few photons: checks the plumbing and that the fit lands near the truth (10 %:
+    // 20 000 photons per incidence is ~10× fewer than the acceptance runs).
+    let d = tempfile::tempdir().unwrap();
+    let csv = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/fit_ndf_demo.csv");
+    let out = d.path().join("fit");
+    let o = opal()
+        .arg("fit-ndf")
+        .arg(&csv)
+        .args(["--entry", "rough", "--family", "ggx", "--photons", "20000", "--json", "--quiet", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let a = j["alpha"].as_f64().unwrap();
+    assert!((a / 0.15 - 1.0).abs() < 0.1, "alpha {a}");
+    assert_eq!(j["family"], "ggx");
+    for f in [
+        "fit.json",
+        "curves.png",
+        "residuals.png",
+        "ndf.csv",
+        "bsdf.csv",
+        "bsdf_tis.csv",
+        "fitted_curves.csv",
+        "plate_fitted.toml",
+        "air_to_material_brdf.BSDF",
+        "air_to_material_btdf.BSDF",
+        "material_to_air_brdf.BSDF",
+        "material_to_air_btdf.BSDF",
+    ] {
+        assert!(out.join(f).exists(), "missing {f}");
+    }
+    // the exported plate reproduces with `opal gonio simulate`
+    let o = opal()
+        .args(["gonio", "simulate"])
+        .arg(out.join("plate_fitted.toml"))
+        .args(["--photons", "1000", "--quiet", "-o"])
+        .arg(d.path().join("re.csv"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+#[test]
+fn non_converged_fit_exits_1_with_outputs() {
+    let d = tempfile::tempdir().unwrap();
+    let csv = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/fit_ndf_demo.csv");
+    let out = d.path().join("fit");
+    let o = opal()
+        .arg("fit-ndf")
+        .arg(&csv)
+        .args([
+            "--entry",
+            "rough",
+            "--family",
+            "beckmann",
+            "--photons",
+            "5000",
+            "--max-iters",
+            "2",
+            "--quiet",
+            "-o",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("did not converge"), "{err}");
+    let j: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("fit.json")).unwrap()).unwrap();
+    assert_eq!(j["converged"], false);
+    assert!(out.join("curves.png").exists());
+}
