@@ -5,3 +5,5 @@
 //! * method B — energy and reciprocity checks of BRDF lobes, normalisation fitting,
 //! * method C — de-lighting (diffuse albedo textures from multi-view HDR photos).
 #![warn(missing_docs)]
+
+pub mod delight;

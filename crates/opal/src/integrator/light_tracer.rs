@@ -233,7 +233,7 @@ fn trace_path(
             if rng.next_f32() >= q {
                 break;
             }
-            beta = beta * (1.0 / q);
+            beta *= 1.0 / q;
         }
     }
 }
