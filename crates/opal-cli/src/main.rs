@@ -23,6 +23,8 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Recover diffuse albedo textures from multi-view HDR images (de-lighting, method C).
+    Delight(cmd::delight::DelightArgs),
     /// Run every workflow on data shipped with Opal and write results to `opal-demo/`.
     Demo(cmd::demo::DemoArgs),
     /// Virtual goniophotometer: plate with polished/rough faces, beam, detectors.
@@ -35,6 +37,7 @@ fn main() {
     let cli = Cli::parse();
     util::set_quiet(cli.quiet);
     let result = match cli.command {
+        Command::Delight(a) => cmd::delight::run(a),
         Command::Demo(a) => cmd::demo::run(a),
         Command::Gonio(a) => cmd::gonio::run(a),
         Command::Render(a) => cmd::render::run(a),

@@ -85,6 +85,7 @@ pub fn run(args: DemoArgs) -> Result<i32> {
     let mut report = serde_json::Map::new();
     report.insert("render".into(), demo_render(&args.output, args.spp.max(1))?);
     report.insert("gonio".into(), super::gonio::demo(&args.output)?);
+    report.insert("delight".into(), super::delight::demo(&args.output)?);
     let path = args.output.join("report.json");
     util::write_bytes_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())?;
     eprintln!("demo: report -> {}", path.display());

@@ -446,18 +446,15 @@ fn update_kd(o: &mut ObjectResult) -> usize {
         // charts seen by no view: the mean of the observed texels
         let m = o.mean_kd_observed();
         let (kd, obs) = (&mut o.kd, &o.observed);
+        let seen: std::collections::HashSet<u32> = (0..n).filter(|&i| obs[i]).map(|i| chart[i]).collect();
         for i in 0..n {
-            if covered[i] && !obs[i] && chart_unseen(&chart, obs, chart[i]) {
+            if covered[i] && !obs[i] && !seen.contains(&chart[i]) {
                 kd[i] = m.map(|v| v as f32);
             }
         }
     }
     inpaint::dilate(&mut o.kd, &covered, o.atlas.width, o.atlas.height, 4);
     clamped
-}
-
-fn chart_unseen(chart: &[u32], observed: &[bool], c: u32) -> bool {
-    !chart.iter().zip(observed).any(|(&x, &o)| x == c && o)
 }
 
 fn quartiles(v: &mut [f64]) -> (f64, f64) {
