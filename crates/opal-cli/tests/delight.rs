@@ -196,10 +196,11 @@ fn acceptance_mitsuba_cbox() {
             tmp
         }
     };
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let report: Option<serde_json::Value> =
+        std::fs::read_to_string(out.join("report.json")).ok().map(|t| serde_json::from_str(&t).unwrap());
     let truth: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("scene.json")).unwrap()).unwrap();
+    let its = (1..100).take_while(|k| out.join(format!("errors/iter_{k:02}_floor.exr")).exists()).count();
     let mut worst = 0f64;
     for t in truth["objects"].as_array().unwrap() {
         let Some(alb) = t["albedo_rgb"].as_array() else { continue };
@@ -207,9 +208,21 @@ fn acceptance_mitsuba_cbox() {
             continue;
         }
         let id = t["name"].as_str().unwrap();
-        let o = report["objects"].as_array().unwrap().iter().find(|o| o["id"] == id).unwrap();
-        let m = &o["mean_albedo_seen"];
-        let rel: Vec<f64> = (0..3).map(|c| m[c].as_f64().unwrap() / alb[c].as_f64().unwrap() - 1.0).collect();
+        // mean of the recovered texture over the texels seen by a view (the last error map is
+        // NaN elsewhere); the atlases have uniform texel density, so a plain mean is area-weighted
+        let kd = opal::image::read::read_image(&out.join(format!("albedo/{id}.exr"))).unwrap();
+        let err = opal::image::read::read_image(&out.join(format!("errors/iter_{its:02}_{id}.exr"))).unwrap();
+        let mut m = [0f64; 3];
+        let mut n = 0f64;
+        for (k, e) in kd.data.iter().zip(&err.data) {
+            if e[0].is_finite() {
+                for c in 0..3 {
+                    m[c] += k[c] as f64;
+                }
+                n += 1.0;
+            }
+        }
+        let rel: Vec<f64> = (0..3).map(|c| m[c] / n / alb[c].as_f64().unwrap() - 1.0).collect();
         println!(
             "{id:18} rel error {:+.2} % {:+.2} % {:+.2} %",
             100.0 * rel[0],
@@ -219,7 +232,6 @@ fn acceptance_mitsuba_cbox() {
         worst = rel.iter().fold(worst, |a, b| a.max(b.abs()));
     }
     // back wall PSNR where seen (error maps are NaN where no view saw the texel)
-    let its = report["iterations"].as_array().unwrap().len();
     let kd = opal::image::read::read_image(&out.join("albedo/back_wall.exr")).unwrap();
     let err =
         opal::image::read::read_image(&out.join(format!("errors/iter_{its:02}_back_wall.exr"))).unwrap();
@@ -253,7 +265,7 @@ fn acceptance_mitsuba_cbox() {
         }
     }
     let psnr = 10.0 * (1.0 / (se / n as f64)).log10();
-    let region = report["max_region_rel_error_luminance"].as_f64().unwrap();
+    let region = report.as_ref().map_or(f64::NAN, |r| r["max_region_rel_error_luminance"].as_f64().unwrap());
     println!(
         "worst albedo error {:.2} %, back wall PSNR {psnr:.2} dB ({} texels), max region error {:.2} %, iterations {its}",
         100.0 * worst,
@@ -262,5 +274,5 @@ fn acceptance_mitsuba_cbox() {
     );
     assert!(worst <= 0.01, "albedo within 1 %: {worst}");
     assert!(psnr >= 38.0, "PSNR {psnr}");
-    assert!(region <= 0.018, "region error {region}");
+    assert!(region <= 0.018, "region error {region} (NaN: no report.json)");
 }

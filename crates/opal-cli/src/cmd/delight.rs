@@ -280,7 +280,9 @@ fn write_outputs(
                 dashed: false,
             },
         ],
-        hline: Some(100.0 * a.tolerance),
+        // a non-positive reference line on the log axis made plotters allocate without bound
+        // (22 GB, killed) in the first full run: draw it only when it is positive
+        hline: (a.tolerance > 0.0).then_some(100.0 * a.tolerance),
     };
     if !r.iterations.is_empty() {
         let tmp = out.join(".convergence.tmp.png");

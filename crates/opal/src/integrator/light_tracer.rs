@@ -114,9 +114,10 @@ pub fn trace(
     let n_batches = s.paths.div_ceil(batch);
     let inv_n = 1.0 / s.paths.max(1) as f64;
     let mut nonfinite = 0u64;
-    // waves bound the memory (one set of maps per batch in flight); the wave size does not
+    // waves bound the memory (one set of maps per batch in flight, at most 8: machines that
+    // report many logical CPUs otherwise multiply the map memory); the wave size does not
     // change the result since batches are merged in index order.
-    let wave = 2 * rayon::current_num_threads().max(1) as u64;
+    let wave = (2 * rayon::current_num_threads().max(1) as u64).min(8);
     let mut b0 = 0;
     while b0 < n_batches {
         let b1 = (b0 + wave).min(n_batches);
