@@ -23,6 +23,8 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Recover diffuse albedo textures from multi-view HDR images (de-lighting, method C).
+    Delight(cmd::delight::DelightArgs),
     /// Run every workflow on data shipped with Opal and write results to `opal-demo/`.
     Demo(cmd::demo::DemoArgs),
     /// Fit the micro-facet NDF of a plate's rough face to measured curves; export its BSDF.
@@ -39,6 +41,7 @@ fn main() {
     let cli = Cli::parse();
     util::set_quiet(cli.quiet);
     let result = match cli.command {
+        Command::Delight(a) => cmd::delight::run(a),
         Command::Demo(a) => cmd::demo::run(a),
         Command::FitNdf(a) => cmd::fit_ndf::run(a),
         Command::Gonio(a) => cmd::gonio::run(a),

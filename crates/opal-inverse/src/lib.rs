@@ -10,3 +10,4 @@ pub mod brdf_energy;
 pub mod export;
 pub mod measured;
 pub mod ndf_fit;
+pub mod delight;

@@ -87,6 +87,7 @@ pub fn run(args: DemoArgs) -> Result<i32> {
     report.insert("brdf".into(), super::brdf::demo(&args.output)?);
     report.insert("gonio".into(), super::gonio::demo(&args.output)?);
     report.insert("fit_ndf".into(), super::fit_ndf::demo(&args.output)?);
+    report.insert("delight".into(), super::delight::demo(&args.output)?);
     let path = args.output.join("report.json");
     util::write_bytes_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())?;
     eprintln!("demo: report -> {}", path.display());

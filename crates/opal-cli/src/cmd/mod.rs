@@ -1,6 +1,7 @@
 //! One module per subcommand.
 
 pub mod brdf;
+pub mod delight;
 pub mod demo;
 pub mod fit_ndf;
 pub mod gonio;

@@ -1,7 +1,9 @@
 //! Integrators: functions over a built [`Scene`](crate::scene::Scene).
 //!
 //! * [`path`]: unidirectional path tracer with next-event estimation and MIS (images).
+//! * [`light_tracer`]: light tracing that deposits irradiance into per-shape texture maps.
 
+pub mod light_tracer;
 pub mod path;
 
 /// Power heuristic (β = 2) weight of a strategy with density `a` against one with density `b`.

@@ -1,0 +1,502 @@
+//! `opal delight`: recovers diffuse albedo textures from multi-view HDR images (method C, see
+//! `opal_inverse::delight`) and writes textures, meshes with UVs, a Mitsuba 3 scene using them,
+//! error maps, a convergence plot, re-renders and report.json / report.html.
+
+use crate::util;
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use opal::image::Image;
+use opal::integrator::path::{PathSettings, render};
+use opal::scene::Scene;
+use opal::scene::desc::SceneDesc;
+use opal_inverse::delight::views::{View, read_views};
+use opal_inverse::delight::{
+    DelightResult, DelightSettings, ObjectResult, UpdateRule, delight, object_masks, recovered_desc,
+    region_stats,
+};
+use serde_json::json;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+/// Arguments of `opal delight`.
+#[derive(Args, Debug, Clone)]
+pub struct DelightArgs {
+    /// Mitsuba 3 XML scene (geometry, emitters; BSDFs of the recovered objects are ignored).
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// NeRF-style transforms.json (OpenGL camera-to-world, camera_angle_x, file_path).
+    #[arg(long)]
+    pub views: PathBuf,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Shapes to recover, comma-separated ids (default: every non-emitting shape).
+    #[arg(long, value_delimiter = ',')]
+    pub objects: Option<Vec<String>>,
+    /// Maximum number of light-tracing iterations.
+    #[arg(long, default_value_t = 5)]
+    pub iterations: usize,
+    /// Stop when the max relative error (outliers removed) is below this.
+    #[arg(long, default_value_t = 0.01)]
+    pub tolerance: f64,
+    /// Light paths per light-tracing pass.
+    #[arg(long, default_value_t = 20_000_000)]
+    pub light_paths: u64,
+    /// Texture resolution: `auto` (256–4096 from the camera footprint) or a number.
+    #[arg(long, default_value = "auto")]
+    pub resolution: String,
+    /// Unwrap every object even when its own UVs are usable.
+    #[arg(long)]
+    pub unwrap_all: bool,
+    /// Update rule of the indirect irradiance: `fixed` (relaxed fixed point) or `paper`.
+    #[arg(long, default_value = "fixed")]
+    pub update: String,
+    /// Samples per pixel of the re-renders (0 = no re-render).
+    #[arg(long, default_value_t = 64)]
+    pub rerender_spp: u32,
+    /// Seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Print report.json on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn exr(path: &Path, img: &Image) -> Result<()> {
+    util::write_atomic(path, |f| Ok(opal::image::write::write_exr(img, std::io::BufWriter::new(f))?))
+}
+
+fn png(path: &Path, img: &Image, exposure: f32) -> Result<()> {
+    util::write_atomic(path, |f| {
+        Ok(opal::image::write::write_png_srgb(img, exposure, std::io::BufWriter::new(f))?)
+    })
+}
+
+/// OBJ text of an object's atlas mesh (OBJ `vt` has v = 0 at the bottom: v_obj = 1 − v).
+fn obj_text(o: &ObjectResult) -> String {
+    let m = &o.atlas.mesh;
+    let mut s = format!("# opal delight: {} with atlas UVs ({}x{})\n", o.id, o.atlas.width, o.atlas.height);
+    for p in &m.positions {
+        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
+    }
+    for uv in &m.uvs {
+        let _ = writeln!(s, "vt {} {}", uv.x, 1.0 - uv.y);
+    }
+    for n in &m.normals {
+        let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
+    }
+    for t in &m.indices {
+        let [a, b, c] = t.map(|i| i + 1);
+        if m.normals.is_empty() {
+            let _ = writeln!(s, "f {a}/{a} {b}/{b} {c}/{c}");
+        } else {
+            let _ = writeln!(s, "f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}");
+        }
+    }
+    s
+}
+
+fn xml_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('"', "&quot;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+/// The input scene text with every recovered shape replaced by an OBJ shape with a diffuse
+/// bitmap BSDF, and every other relative `filename` made absolute (the new file lives elsewhere).
+fn rewrite_scene(text: &str, scene_dir: &Path, objects: &[ObjectResult], desc: &SceneDesc) -> Result<String> {
+    let doc = roxmltree::Document::parse(text).context("cannot re-parse the scene for rewriting")?;
+    let shapes: Vec<roxmltree::Node> = doc.descendants().filter(|n| n.has_tag_name("shape")).collect();
+    let mut edits: Vec<(std::ops::Range<usize>, String)> = Vec::new();
+    let mut replaced = Vec::new();
+    for o in objects {
+        let node = shapes
+            .iter()
+            .find(|n| n.attribute("id") == Some(o.id.as_str()))
+            .or_else(|| if shapes.len() == desc.shapes.len() { shapes.get(o.shape) } else { None })
+            .with_context(|| format!("cannot find shape '{}' in the scene file", o.id))?;
+        let face = if o.atlas.mesh.normals.is_empty() {
+            "\n        <boolean name=\"face_normals\" value=\"true\"/>"
+        } else {
+            ""
+        };
+        let new = format!(
+            "<shape type=\"obj\" id=\"{id}\">\n        <string name=\"filename\" value=\"meshes/{id}.obj\"/>{face}\n        <bsdf type=\"diffuse\">\n            <texture type=\"bitmap\" name=\"reflectance\">\n                <string name=\"filename\" value=\"albedo/{id}.exr\"/>\n                <string name=\"filter_type\" value=\"bilinear\"/>\n                <string name=\"wrap_mode\" value=\"clamp\"/>\n                <boolean name=\"raw\" value=\"true\"/>\n            </texture>\n        </bsdf>\n    </shape>",
+            id = xml_escape(&o.id)
+        );
+        replaced.push(node.range());
+        edits.push((node.range(), new));
+    }
+    for n in doc.descendants().filter(|n| n.has_tag_name("string") && n.attribute("name") == Some("filename"))
+    {
+        if replaced.iter().any(|r| r.start <= n.range().start && n.range().end <= r.end) {
+            continue;
+        }
+        let v = n.attribute("value").unwrap_or("");
+        if v.starts_with('$') || Path::new(v).is_absolute() {
+            continue;
+        }
+        let abs = std::fs::canonicalize(scene_dir.join(v)).unwrap_or_else(|_| scene_dir.join(v));
+        edits.push((
+            n.range(),
+            format!("<string name=\"filename\" value=\"{}\"/>", xml_escape(&abs.to_string_lossy())),
+        ));
+    }
+    edits.sort_by_key(|e| std::cmp::Reverse(e.0.start));
+    let mut out = text.to_string();
+    for (r, s) in edits {
+        out.replace_range(r, &s);
+    }
+    Ok(out)
+}
+
+/// Runs the whole de-lighting with outputs; returns the report.
+pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serde_json::Value> {
+    let desc = opal::scene::load::load_mitsuba_xml(&a.scene, &[])
+        .with_context(|| format!("cannot load the scene {}", a.scene.display()))?;
+    for w in &desc.warnings {
+        log(&format!("warning: {w}"));
+    }
+    let (views, vwarn) =
+        read_views(&a.views).with_context(|| format!("cannot read the views {}", a.views.display()))?;
+    for w in &vwarn {
+        log(&format!("warning: {w}"));
+    }
+    let resolution = if a.resolution == "auto" {
+        None
+    } else {
+        let r: usize = a
+            .resolution
+            .parse()
+            .with_context(|| format!("--resolution: expected 'auto' or a number, got '{}'", a.resolution))?;
+        if !(4..=8192).contains(&r) {
+            bail!("--resolution {r}: must be in 4..=8192");
+        }
+        Some(r)
+    };
+    let update = match a.update.as_str() {
+        "fixed" => UpdateRule::FixedPoint,
+        "paper" => UpdateRule::Paper { alpha0: 2.0 },
+        u => bail!("--update: expected 'fixed' or 'paper', got '{u}'"),
+    };
+    if a.light_paths == 0 {
+        bail!("--light-paths must be at least 1");
+    }
+    let settings = DelightSettings {
+        objects: a.objects.clone(),
+        iterations: a.iterations,
+        tolerance: a.tolerance,
+        light_paths: a.light_paths,
+        resolution,
+        seed: a.seed,
+        keep_uvs: !a.unwrap_all,
+        update,
+        ..Default::default()
+    };
+    let r = delight(&desc, &views, &settings, log)?;
+    write_outputs(a, &desc, &views, &r, &vwarn, log)
+}
+
+fn write_outputs(
+    a: &DelightArgs,
+    desc: &SceneDesc,
+    views: &[View],
+    r: &DelightResult,
+    vwarn: &[String],
+    log: &(dyn Fn(&str) + Sync),
+) -> Result<serde_json::Value> {
+    let out = &a.output;
+    let t0 = std::time::Instant::now();
+    // textures, meshes, error maps
+    let mut objs = Vec::new();
+    for (j, o) in r.objects.iter().enumerate() {
+        let img = o.kd_image();
+        exr(&out.join(format!("albedo/{}.exr", o.id)), &img)?;
+        png(&out.join(format!("albedo/{}.png", o.id)), &img, 1.0)?;
+        util::write_bytes_atomic(&out.join(format!("meshes/{}.obj", o.id)), obj_text(o).as_bytes())?;
+        for it in &r.iterations {
+            let e = &it.error_maps[j];
+            let abs: Vec<f32> = e.iter().map(|v| v.abs()).collect();
+            util::write_atomic(&out.join(format!("errors/iter_{:02}_{}.png", it.iteration, o.id)), |f| {
+                Ok(opal::image::write::write_false_colour_png(
+                    &abs,
+                    o.atlas.width,
+                    o.atlas.height,
+                    (0.0, 0.1),
+                    std::io::BufWriter::new(f),
+                )?)
+            })?;
+            let mut ei = Image::new(o.atlas.width, o.atlas.height);
+            for (p, v) in ei.data.iter_mut().zip(e) {
+                *p = opal::spectrum::Spectrum::splat(*v);
+            }
+            exr(&out.join(format!("errors/iter_{:02}_{}.exr", it.iteration, o.id)), &ei)?;
+        }
+        let m = o.mean_kd_observed();
+        objs.push(json!({
+            "id": o.id,
+            "resolution": [o.atlas.width, o.atlas.height],
+            "charts": o.atlas.charts,
+            "kept_uvs": o.atlas.kept_uvs,
+            "seen_fraction": o.seen_fraction,
+            "seen_by_a_view": o.seen_fraction > 0.0,
+            "recovered_from_inpainting_only": o.seen_fraction == 0.0,
+            "near_emitter_median_filter": o.near_emitter,
+            "mean_albedo_seen": m,
+            "mean_albedo": o.mean_kd(),
+            "clamped_texel_channels": o.clamped,
+            "texture": format!("albedo/{}.exr", o.id),
+            "mesh": format!("meshes/{}.obj", o.id),
+        }));
+    }
+    // scene.xml
+    let text =
+        std::fs::read_to_string(&a.scene).with_context(|| format!("cannot read {}", a.scene.display()))?;
+    let scene_dir = a.scene.parent().unwrap_or(Path::new("."));
+    let new_xml = rewrite_scene(&text, scene_dir, &r.objects, desc)?;
+    util::write_bytes_atomic(&out.join("scene.xml"), new_xml.as_bytes())?;
+    // convergence plot
+    let series = |f: &dyn Fn(&opal_inverse::delight::IterationStats) -> f64| -> Vec<(f64, f64)> {
+        r.iterations.iter().map(|i| (i.iteration as f64, 100.0 * f(i))).collect()
+    };
+    let plot = crate::plot::LinePlot {
+        title: "de-lighting convergence".into(),
+        x_label: "iteration".into(),
+        y_label: "relative error (%)".into(),
+        log_y: true,
+        series: vec![
+            crate::plot::Series {
+                name: "max".into(),
+                points: series(&|i| i.max_rel_error),
+                color: 3,
+                dashed: false,
+            },
+            crate::plot::Series {
+                name: "mean".into(),
+                points: series(&|i| i.mean_rel_error),
+                color: 0,
+                dashed: false,
+            },
+        ],
+        // a non-positive reference line on the log axis made plotters allocate without bound
+        // (22 GB, killed) in the first full run: draw it only when it is positive
+        hline: (a.tolerance > 0.0).then_some(100.0 * a.tolerance),
+    };
+    if !r.iterations.is_empty() {
+        let tmp = out.join(".convergence.tmp.png");
+        plot.save(&tmp, (640, 420))?;
+        std::fs::rename(&tmp, out.join("convergence.png"))?;
+    }
+    // re-renders and region statistics
+    let mut regions = Vec::new();
+    let mut max_region_err = 0f64;
+    let mut rerenders = Vec::new();
+    if a.rerender_spp > 0 {
+        let rdesc = recovered_desc(desc, &r.objects);
+        let mut rscene = Scene::build(&rdesc)?;
+        let scene = Scene::build(desc)?;
+        rscene.cameras = views.iter().map(|v| v.camera.clone()).collect();
+        let integ = desc.integrator.clone().unwrap_or_default();
+        let ps = PathSettings {
+            spp: a.rerender_spp,
+            max_depth: integ.max_depth,
+            rr_depth: integ.rr_depth,
+            hide_emitters: integ.hide_emitters,
+            seed: a.seed ^ 0xDE11,
+        };
+        let shapes: Vec<usize> = r.objects.iter().map(|o| o.shape).collect();
+        for (vi, v) in views.iter().enumerate() {
+            let ro = render(&rscene, vi, &ps, &|| {});
+            exr(&out.join(format!("rerender/{}.exr", v.name)), &ro.image)?;
+            png(&out.join(format!("rerender/{}.png", v.name)), &ro.image, 1.0)?;
+            let mut photo = v.image.clone();
+            photo
+                .data
+                .iter_mut()
+                .filter(|p| !p.is_finite())
+                .for_each(|p| *p = opal::spectrum::Spectrum::ZERO);
+            png(&out.join(format!("photo/{}.png", v.name)), &photo, 1.0)?;
+            rerenders.push(json!({"view": v.name, "photo": format!("photo/{}.png", v.name), "rerender": format!("rerender/{}.png", v.name)}));
+            let masks = object_masks(&scene, v, &shapes);
+            for (o, m) in r.objects.iter().zip(masks) {
+                let n = m.iter().filter(|&&b| b).count();
+                if n < 64 {
+                    continue;
+                }
+                let p = region_stats(&v.image, &m);
+                let q = region_stats(&ro.image, &m);
+                let rel_y = q.mean_luminance / p.mean_luminance - 1.0;
+                let rel_rgb: Vec<f64> =
+                    (0..3).map(|c| q.mean_rgb[c] / p.mean_rgb[c].max(1e-12) - 1.0).collect();
+                max_region_err = max_region_err.max(rel_y.abs());
+                regions.push(json!({
+                    "view": v.name, "object": o.id, "pixels": n,
+                    "photo": p, "rerender": q,
+                    "rel_error_luminance": rel_y, "rel_error_rgb": rel_rgb,
+                }));
+            }
+        }
+    }
+    let its: Vec<serde_json::Value> = r
+        .iterations
+        .iter()
+        .map(|i| {
+            json!({
+                "iteration": i.iteration, "max_rel_error": i.max_rel_error, "mean_rel_error": i.mean_rel_error,
+                "per_object": r.objects.iter().zip(&i.per_object).map(|(o, p)| json!({"id": o.id, "max": p.0, "mean": p.1, "outliers": p.2})).collect::<Vec<_>>(),
+                "tracer_direct_over_light_sampled_direct": i.direct_ratio.iter().map(|v| if v.is_finite() { json!(v) } else { json!(null) }).collect::<Vec<_>>(),
+                "seconds": i.seconds,
+            })
+        })
+        .collect();
+    let mut timings: serde_json::Map<String, serde_json::Value> =
+        r.timings.iter().map(|(k, v)| (k.clone(), json!(v))).collect();
+    timings.insert("outputs_and_rerenders".into(), json!(t0.elapsed().as_secs_f64()));
+    let report = json!({
+        "scene": a.scene, "views": a.views, "n_views": views.len(),
+        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp},
+        "converged": r.converged,
+        "iterations": its,
+        "objects": objs,
+        "skipped": r.skipped.iter().map(|(id, why)| json!({"id": id, "reason": why})).collect::<Vec<_>>(),
+        "warnings": r.warnings.iter().chain(vwarn).collect::<Vec<_>>(),
+        "regions": regions,
+        "max_region_rel_error_luminance": max_region_err,
+        "rerenders": rerenders,
+        "light_paths_total": r.light_paths,
+        "timings_seconds": timings,
+        "outputs": {"scene": "scene.xml", "convergence_plot": "convergence.png", "report_html": "report.html"},
+    });
+    util::write_bytes_atomic(&out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
+    util::write_bytes_atomic(&out.join("report.html"), html(&report).as_bytes())?;
+    log(&format!("delight: outputs in {} (max region error {:.2} %)", out.display(), 100.0 * max_region_err));
+    Ok(report)
+}
+
+fn html(r: &serde_json::Value) -> String {
+    let mut s = String::from(
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>opal delight report</title><style>body{font-family:sans-serif}td,th{padding:2px 8px;text-align:right}img{image-rendering:pixelated;width:256px}</style></head><body><h1>De-lighting report</h1>",
+    );
+    let _ = write!(
+        s,
+        "<p>converged: {} — max region error (luminance): {:.3} %</p><img src=\"convergence.png\" style=\"width:480px\">",
+        r["converged"],
+        100.0 * r["max_region_rel_error_luminance"].as_f64().unwrap_or(f64::NAN)
+    );
+    s.push_str("<h2>Objects</h2><table><tr><th>object</th><th>seen</th><th>mean albedo (seen)</th><th>texture</th></tr>");
+    for o in r["objects"].as_array().into_iter().flatten() {
+        let m = &o["mean_albedo_seen"];
+        let _ = write!(
+            s,
+            "<tr><td>{}</td><td>{:.1} %</td><td>{:.4} {:.4} {:.4}</td><td><img src=\"{}\" style=\"width:96px\"></td></tr>",
+            o["id"].as_str().unwrap_or(""),
+            100.0 * o["seen_fraction"].as_f64().unwrap_or(0.0),
+            m[0].as_f64().unwrap_or(0.0),
+            m[1].as_f64().unwrap_or(0.0),
+            m[2].as_f64().unwrap_or(0.0),
+            o["texture"].as_str().unwrap_or("").replace(".exr", ".png")
+        );
+    }
+    s.push_str("</table><h2>Regions: photo vs re-render</h2><table><tr><th>view</th><th>object</th><th>px</th><th>mean L</th><th>L RMS</th><th>RGB</th><th>CIE xy</th><th>rel. err.</th></tr>");
+    for g in r["regions"].as_array().into_iter().flatten() {
+        for (k, who) in [("photo", "photo"), ("rerender", "re-render")] {
+            let p = &g[k];
+            let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+            let _ = write!(
+                s,
+                "<tr><td>{}</td><td>{} ({who})</td><td>{}</td><td>{:.6}</td><td>{:.6}</td><td>{:.6} {:.6} {:.6}</td><td>{:.6} {:.6}</td><td>{}</td></tr>",
+                g["view"].as_str().unwrap_or(""),
+                g["object"].as_str().unwrap_or(""),
+                g["pixels"],
+                f(&p["mean_luminance"]),
+                f(&p["luminance_rms"]),
+                f(&p["mean_rgb"][0]),
+                f(&p["mean_rgb"][1]),
+                f(&p["mean_rgb"][2]),
+                f(&p["xy"][0]),
+                f(&p["xy"][1]),
+                if k == "rerender" {
+                    format!("{:+.3} %", 100.0 * f(&g["rel_error_luminance"]))
+                } else {
+                    String::new()
+                }
+            );
+        }
+    }
+    s.push_str("</table><h2>Views: photo | re-render</h2>");
+    for v in r["rerenders"].as_array().into_iter().flatten() {
+        let _ = write!(
+            s,
+            "<p>{}<br><img src=\"{}\"> <img src=\"{}\"></p>",
+            v["view"].as_str().unwrap_or(""),
+            v["photo"].as_str().unwrap_or(""),
+            v["rerender"].as_str().unwrap_or("")
+        );
+    }
+    s.push_str("</body></html>\n");
+    s
+}
+
+/// Runs `opal delight`; returns the exit code.
+pub fn run(a: DelightArgs) -> Result<i32> {
+    util::ensure_not_input(&a.output, &[&a.scene, &a.views])?;
+    if let Some(t) = a.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(t.max(1)).build_global().ok();
+    }
+    let log = |l: &str| eprintln!("{l}");
+    let report = run_pipeline(&a, &log)?;
+    if a.json {
+        let mut o = std::io::stdout().lock();
+        writeln!(o, "{}", serde_json::to_string_pretty(&report)?)?;
+    }
+    Ok(0)
+}
+
+/// `opal demo` part: renders 8 small views of the bundled Cornell box with Opal at its true
+/// albedos, then de-lights them (small settings, well under 30 s on 2 cores).
+pub fn demo(out: &Path) -> Result<serde_json::Value> {
+    let dir = out.join("delight");
+    let scene_path = super::demo::write_cbox(&dir.join("cbox"))?;
+    let mut desc = opal::scene::load::load_mitsuba_xml(&scene_path, &[])?;
+    let res = 48;
+    for s in &mut desc.sensors {
+        s.width = res;
+        s.height = res;
+    }
+    let scene = Scene::build(&desc)?;
+    let ps = PathSettings { spp: 64, max_depth: -1, rr_depth: 5, hide_emitters: false, seed: 1 };
+    let mut frames = Vec::new();
+    for (c, s) in desc.sensors.iter().enumerate() {
+        let img = render(&scene, c, &ps, &|| {}).image;
+        let name = format!("views/{}.exr", s.id);
+        exr(&dir.join(&name), &img)?;
+        let gl = s.to_world * opal::math::Mat4::from_scale(opal::math::Vec3::new(-1.0, 1.0, -1.0));
+        let rows: Vec<Vec<f32>> = (0..4).map(|r| (0..4).map(|c| gl.col(c)[r]).collect()).collect();
+        frames.push(json!({"file_path": name, "transform_matrix": rows, "camera_angle_x": s.fov_x_deg.to_radians(), "w": res, "h": res}));
+    }
+    let tj = dir.join("transforms.json");
+    util::write_bytes_atomic(&tj, serde_json::to_string_pretty(&json!({"frames": frames}))?.as_bytes())?;
+    let args = DelightArgs {
+        scene: scene_path,
+        views: tj,
+        output: dir.join("result"),
+        objects: None,
+        iterations: 3,
+        tolerance: 0.01,
+        light_paths: 500_000,
+        resolution: "32".into(),
+        unwrap_all: false,
+        update: "fixed".into(),
+        rerender_spp: 16,
+        seed: 0,
+        threads: None,
+        json: false,
+    };
+    let report = run_pipeline(&args, &|l| eprintln!("demo delight: {l}"))?;
+    eprintln!("demo: de-lighting report -> {}", args.output.join("report.html").display());
+    Ok(
+        json!({"output": args.output, "converged": report["converged"], "objects": report["objects"], "max_region_rel_error_luminance": report["max_region_rel_error_luminance"]}),
+    )
+}

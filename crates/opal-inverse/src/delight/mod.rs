@@ -1,0 +1,883 @@
+//! De-lighting (method C, `docs/methods/004-diffuse-texture-recovery.md`): recovers the diffuse
+//! albedo textures `Kd` of selected objects from multi-view linear HDR images, known geometry,
+//! emitters and cameras.
+//!
+//! Pipeline ([`delight`]):
+//! 1. atlas per object ([`atlas`]: own UVs when usable, else planar charts + shelf packing),
+//!    resolution from [`atlas::auto_resolution`] unless given;
+//! 2. luminance map `L`: every covered texel is projected into every view; a view counts when
+//!    the texel faces it, lies in its frustum, the segment to the camera is unoccluded and the
+//!    bilinear taps are "pure" pixels of the same shape and plane ([`views::pure_buffer`]);
+//!    views are averaged with cos θ (surface normal · direction to the camera) weights;
+//! 3. objects close to an emitter get a 3×3 median filter on `L` first; holes of `L` are
+//!    inpainted ([`inpaint`]) for previews;
+//! 4. direct irradiance `Ed` per texel by light sampling (power-proportional light choice,
+//!    stratified positions, shadow rays);
+//! 5. `Kd = π L / (Ed + Ei)` per channel with `Ei = share · Ed` (or `share` × the scene-average
+//!    irradiance where a texel has no direct light); where `Kd > 1`, `Ei` is raised to
+//!    `π L − Ed` (so `Kd = 1`); `Kd` is computed on observed texels and inpainted elsewhere;
+//! 6. iterations: a light-tracing pass ([`opal::integrator::light_tracer`], importance transport)
+//!    with the current `Kd` gives the indirect irradiance `Ei_r` (smoothed within charts over
+//!    `smooth` texels: indirect light is low-frequency and this cuts Monte-Carlo noise); the
+//!    error `e = L − Kd/π (Ed + Ei_r)` on observed texels, relative to `L` (luminance), with
+//!    quartile (Tukey 1.5·IQR) outlier rejection per object gives the max/mean error of the
+//!    iteration; `Ei` is updated by the fixed-point rule `Ei ← Ei_r` (default) or the paper's
+//!    gradient step `Ei ← max(0, Ei + α_k Kd/π e)`, `α_k = α₀/(1+k)`; `Kd` is recomputed with
+//!    the [0, 1] correction; stop when the max error is below the tolerance or at the limit.
+//!
+//! Tests: unit tests of the parts in their modules; `crates/opal-inverse/tests/delight.rs`
+//! (round trip on a small Cornell box rendered by Opal at known albedos; the independent
+//! Mitsuba 3 data set as an ignored test).
+
+// Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
+pub mod atlas;
+pub mod inpaint;
+pub mod views;
+
+use atlas::{Atlas, NO_TRI};
+use opal::error::{Error, Result};
+use opal::geometry::Ray;
+use opal::image::Image;
+use opal::integrator::light_tracer::{self, IrradianceTarget, LightTraceSettings};
+use opal::integrator::spawn_ray_to;
+use opal::math::{PI, Vec2, Vec3};
+use opal::sampling::Rng;
+use opal::scene::Scene;
+use opal::scene::desc::{BitmapDesc, BsdfDesc, FilterType, SceneDesc, TextureDesc, WrapMode};
+use opal::spectrum::Spectrum;
+use rayon::prelude::*;
+use std::sync::Arc;
+use views::{MIXED, PureBuffer, View};
+
+/// How the indirect irradiance is updated between light-tracing passes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum UpdateRule {
+    /// `Ei ← Ei_render` (fixed point of `Kd = πL/(Ed + Ei(Kd))`).
+    FixedPoint,
+    /// The paper's gradient step with `α_k = alpha0 / (1 + k)`.
+    Paper {
+        /// Initial step α₀ (the paper: 2).
+        alpha0: f32,
+    },
+}
+
+/// Settings of [`delight`].
+#[derive(Clone, Debug)]
+pub struct DelightSettings {
+    /// Shapes to recover (ids); `None` = every non-emitting shape.
+    pub objects: Option<Vec<String>>,
+    /// Maximum number of light-tracing iterations.
+    pub iterations: usize,
+    /// Stop when the max relative error (luminance, outliers removed) falls below this.
+    pub tolerance: f64,
+    /// Light paths per light-tracing pass.
+    pub light_paths: u64,
+    /// Texture resolution (square); `None` = adaptive (256–4096).
+    pub resolution: Option<usize>,
+    /// Seed.
+    pub seed: u64,
+    /// Keep usable existing UVs.
+    pub keep_uvs: bool,
+    /// Light samples per texel for the direct irradiance.
+    pub direct_samples: u32,
+    /// Initial indirect share of the direct irradiance.
+    pub indirect_share: f32,
+    /// Update rule of the indirect irradiance.
+    pub update: UpdateRule,
+    /// Smoothing radius (texels) of the rendered indirect irradiance; `None` = resolution/64.
+    pub smooth: Option<usize>,
+}
+
+impl Default for DelightSettings {
+    fn default() -> Self {
+        DelightSettings {
+            objects: None,
+            iterations: 5,
+            tolerance: 0.01,
+            light_paths: 20_000_000,
+            resolution: None,
+            seed: 0,
+            keep_uvs: true,
+            direct_samples: 64,
+            indirect_share: 0.5,
+            update: UpdateRule::FixedPoint,
+            smooth: None,
+        }
+    }
+}
+
+/// State and results of one recovered object.
+#[derive(Clone, Debug)]
+pub struct ObjectResult {
+    /// Shape index in the scene.
+    pub shape: usize,
+    /// Shape id.
+    pub id: String,
+    /// Atlas (mesh with UVs, texel → surface).
+    pub atlas: Atlas,
+    /// Observed luminance per texel (inpainted in holes).
+    pub l: Vec<[f32; 3]>,
+    /// Whether a texel was seen by at least one view.
+    pub observed: Vec<bool>,
+    /// Direct irradiance per texel.
+    pub ed: Vec<[f32; 3]>,
+    /// Current indirect irradiance estimate per texel.
+    pub ei: Vec<[f32; 3]>,
+    /// Recovered albedo per texel (gutter dilated).
+    pub kd: Vec<[f32; 3]>,
+    /// Close to an emitter (median filter applied).
+    pub near_emitter: bool,
+    /// Fraction of covered texels seen by a view.
+    pub seen_fraction: f64,
+    /// Texels where `Kd` hit the upper bound 1 in the last update.
+    pub clamped: usize,
+}
+
+impl ObjectResult {
+    /// Albedo texture as an image (row 0 = v 0, Mitsuba's convention).
+    pub fn kd_image(&self) -> Image {
+        to_image(&self.kd, self.atlas.width, self.atlas.height)
+    }
+    /// Mean albedo over the texels seen by a view, weighted by texel world area.
+    pub fn mean_kd_observed(&self) -> [f64; 3] {
+        let mut acc = [0f64; 3];
+        let mut w = 0f64;
+        for i in 0..self.kd.len() {
+            let t = self.atlas.texel_tri[i];
+            if t != NO_TRI && self.observed[i] {
+                let a = self.atlas.texel_area[t as usize] as f64;
+                for c in 0..3 {
+                    acc[c] += a * self.kd[i][c] as f64;
+                }
+                w += a;
+            }
+        }
+        acc.map(|v| v / w.max(1e-30))
+    }
+    /// Mean albedo over the covered texels, weighted by texel world area.
+    pub fn mean_kd(&self) -> [f64; 3] {
+        let mut acc = [0f64; 3];
+        let mut w = 0f64;
+        for i in 0..self.kd.len() {
+            let t = self.atlas.texel_tri[i];
+            if t != NO_TRI {
+                let a = self.atlas.texel_area[t as usize] as f64;
+                for c in 0..3 {
+                    acc[c] += a * self.kd[i][c] as f64;
+                }
+                w += a;
+            }
+        }
+        acc.map(|v| v / w.max(1e-30))
+    }
+}
+
+/// Statistics of one iteration.
+#[derive(Clone, Debug)]
+pub struct IterationStats {
+    /// Iteration number (1 = first light-tracing pass).
+    pub iteration: usize,
+    /// Max |relative error| over objects (inliers).
+    pub max_rel_error: f64,
+    /// Mean |relative error| (inliers, texel-count weighted).
+    pub mean_rel_error: f64,
+    /// Per object: (max, mean, outliers removed).
+    pub per_object: Vec<(f64, f64, usize)>,
+    /// Per object: relative luminance error per texel (NaN where not observed).
+    pub error_maps: Vec<Vec<f32>>,
+    /// Seconds of this iteration.
+    pub seconds: f64,
+    /// Per object: mean of the tracer's direct irradiance / light-sampled `Ed` (consistency
+    /// check of the two estimators; ≈ 1).
+    pub direct_ratio: Vec<f64>,
+}
+
+/// Result of [`delight`].
+#[derive(Clone, Debug)]
+pub struct DelightResult {
+    /// Recovered objects.
+    pub objects: Vec<ObjectResult>,
+    /// Objects that could not be recovered: (id, reason).
+    pub skipped: Vec<(String, String)>,
+    /// Iterations.
+    pub iterations: Vec<IterationStats>,
+    /// The error fell below the tolerance.
+    pub converged: bool,
+    /// Warnings (unseen objects, masked pixels...).
+    pub warnings: Vec<String>,
+    /// Seconds per stage: (name, seconds).
+    pub timings: Vec<(String, f64)>,
+    /// Light paths traced in total.
+    pub light_paths: u64,
+}
+
+fn to_image(v: &[[f32; 3]], w: usize, h: usize) -> Image {
+    let mut img = Image::new(w, h);
+    for (d, s) in img.data.iter_mut().zip(v) {
+        *d = Spectrum::rgb(s[0], s[1], s[2]);
+    }
+    img
+}
+
+/// Rec. 709 luminance.
+#[inline]
+pub fn luminance(c: [f32; 3]) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+/// The scene description with every recovered object using its atlas mesh and a diffuse BSDF
+/// with its albedo texture (bilinear, clamp).
+pub fn recovered_desc(desc: &SceneDesc, objects: &[ObjectResult]) -> SceneDesc {
+    let mut d = desc.clone();
+    for o in objects {
+        let s = &mut d.shapes[o.shape];
+        s.mesh = o.atlas.mesh.clone();
+        s.bsdf = BsdfDesc::Diffuse {
+            reflectance: TextureDesc::Bitmap(BitmapDesc {
+                image: Arc::new(o.kd_image()),
+                filter: FilterType::Bilinear,
+                wrap: WrapMode::Clamp,
+                path: format!("{}.exr", o.id).into(),
+            }),
+        };
+    }
+    d
+}
+
+fn bbox(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
+    let mut lo = Vec3::splat(f32::MAX);
+    let mut hi = Vec3::splat(f32::MIN);
+    for p in points {
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    (lo, hi)
+}
+
+/// Luminance map of one object (step 2): values, observed mask.
+fn luminance_map(
+    scene: &Scene,
+    shape: u32,
+    a: &Atlas,
+    views: &[View],
+    pure: &[PureBuffer],
+) -> (Vec<[f32; 3]>, Vec<bool>) {
+    let n = a.width * a.height;
+    let res: Vec<([f32; 3], bool)> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            if a.texel_tri[i] == NO_TRI {
+                return ([0.0; 3], false);
+            }
+            let (p, ng) = (a.texel_p[i], a.texel_ng[i]);
+            let ns = a.texel_n[i];
+            let mut acc = [0f64; 3];
+            let mut wsum = 0f64;
+            for (v, pb) in views.iter().zip(pure) {
+                let cam = &v.camera;
+                let to_cam = cam.origin() - p;
+                let dist = to_cam.length();
+                let dir = to_cam / dist;
+                let cos = ns.dot(dir);
+                if cos <= 0.0 || ng.dot(dir) <= 0.0 {
+                    continue;
+                }
+                let Some(px) = cam.project(p) else { continue };
+                let shadow = spawn_ray_to(p, ng, cam.origin(), Vec3::ZERO);
+                if scene.occluded(&shadow) {
+                    continue;
+                }
+                // bilinear taps on pure pixels of this shape and plane
+                let x = px.x - 0.5;
+                let y = px.y - 0.5;
+                let (x0, y0) = (x.floor(), y.floor());
+                let (fx, fy) = (x - x0, y - y0);
+                let mut val = [0f64; 3];
+                let mut wt = 0f64;
+                for (dx, dy, w) in [
+                    (0, 0, (1.0 - fx) * (1.0 - fy)),
+                    (1, 0, fx * (1.0 - fy)),
+                    (0, 1, (1.0 - fx) * fy),
+                    (1, 1, fx * fy),
+                ] {
+                    let (xi, yi) = (x0 as i64 + dx, y0 as i64 + dy);
+                    if xi < 0 || yi < 0 || xi >= cam.width as i64 || yi >= cam.height as i64 || w <= 0.0 {
+                        continue;
+                    }
+                    let k = yi as usize * cam.width + xi as usize;
+                    if pb.shape[k] != shape || pb.normal[k].dot(ng) < 0.999 {
+                        continue;
+                    }
+                    let c = v.image.data[k];
+                    if !c.is_finite() {
+                        continue;
+                    }
+                    for ch in 0..3 {
+                        val[ch] += w as f64 * c[ch] as f64;
+                    }
+                    wt += w as f64;
+                }
+                if wt < 0.5 {
+                    continue;
+                }
+                let wv = cos as f64;
+                for ch in 0..3 {
+                    acc[ch] += wv * val[ch] / wt;
+                }
+                wsum += wv;
+            }
+            if wsum > 0.0 { (acc.map(|x| (x / wsum) as f32), true) } else { ([0.0; 3], false) }
+        })
+        .collect();
+    res.into_iter().unzip()
+}
+
+/// Direct irradiance per texel (step 4).
+fn direct_irradiance(scene: &Scene, a: &Atlas, samples: u32, seed: u64, stream: u64) -> Vec<[f32; 3]> {
+    let Some(ls) = scene.light_sampler() else { return vec![[0.0; 3]; a.width * a.height] };
+    let side = (samples.max(1) as f32).sqrt().ceil() as u32;
+    let n = side * side;
+    (0..a.width * a.height)
+        .into_par_iter()
+        .map(|i| {
+            if a.texel_tri[i] == NO_TRI {
+                return [0.0; 3];
+            }
+            let (p, ng, ns) = (a.texel_p[i], a.texel_ng[i], a.texel_n[i]);
+            let mut rng = Rng::new(seed, stream, i as u64);
+            let mut e = [0f64; 3];
+            for k in 0..n {
+                let (sx, sy) = (k % side, k / side);
+                let u = Vec2::new(
+                    (sx as f32 + rng.next_f32()) / side as f32,
+                    (sy as f32 + rng.next_f32()) / side as f32,
+                );
+                let (li, pmf, _) = ls.sample(rng.next_f32());
+                let Some(s) = scene.lights[li].sample_li(p, u) else { continue };
+                if s.pdf <= 0.0 || pmf <= 0.0 {
+                    continue;
+                }
+                let cos = ns.dot(s.wi);
+                if cos <= 0.0 || ng.dot(s.wi) <= 0.0 {
+                    continue;
+                }
+                let shadow = spawn_ray_to(p, ng, s.p, s.n);
+                if scene.occluded(&shadow) {
+                    continue;
+                }
+                let w = cos / (pmf * s.pdf);
+                for c in 0..3 {
+                    e[c] += (s.li[c] * w) as f64;
+                }
+            }
+            e.map(|v| (v / n as f64) as f32)
+        })
+        .collect()
+}
+
+/// Box filter within charts (separable, normalised over covered texels of the same chart).
+fn smooth_in_charts(v: &[[f32; 3]], a: &Atlas, r: usize) -> Vec<[f32; 3]> {
+    if r == 0 {
+        return v.to_vec();
+    }
+    let (w, h) = (a.width, a.height);
+    let chart: Vec<u32> = (0..w * h).map(|i| a.texel_chart(i)).collect();
+    let pass = |src: &[[f32; 3]], horizontal: bool| -> Vec<[f32; 3]> {
+        (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                if chart[i] == u32::MAX {
+                    return src[i];
+                }
+                let (x, y) = ((i % w) as i64, (i / w) as i64);
+                let mut acc = [0f64; 3];
+                let mut k = 0f64;
+                for d in -(r as i64)..=(r as i64) {
+                    let (xx, yy) = if horizontal { (x + d, y) } else { (x, y + d) };
+                    if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
+                        continue;
+                    }
+                    let j = yy as usize * w + xx as usize;
+                    if chart[j] == chart[i] {
+                        for c in 0..3 {
+                            acc[c] += src[j][c] as f64;
+                        }
+                        k += 1.0;
+                    }
+                }
+                acc.map(|x| (x / k) as f32)
+            })
+            .collect()
+    };
+    let t = pass(v, true);
+    pass(&t, false)
+}
+
+/// `Kd = π L / (Ed + Ei)` with the [0, 1] correction (raises `Ei` where `Kd > 1`); returns the
+/// number of clamped texel-channels.
+fn update_kd(o: &mut ObjectResult) -> usize {
+    let mut clamped = 0;
+    let n = o.kd.len();
+    let covered: Vec<bool> = (0..n).map(|i| o.atlas.texel_tri[i] != NO_TRI).collect();
+    for i in 0..n {
+        if !o.observed[i] {
+            continue;
+        }
+        for c in 0..3 {
+            let l = o.l[i][c].max(0.0);
+            let e = o.ed[i][c] + o.ei[i][c];
+            let pl = PI * l;
+            if pl > e {
+                // Kd would exceed 1: smallest admissible Ei
+                o.ei[i][c] = (pl - o.ed[i][c]).max(0.0);
+                o.kd[i][c] = if pl > 0.0 { 1.0 } else { 0.0 };
+                clamped += 1;
+            } else {
+                o.kd[i][c] = if e > 0.0 { pl / e } else { 0.0 };
+            }
+        }
+    }
+    let r = (o.atlas.width / 16).max(4);
+    let chart: Vec<u32> = (0..n).map(|i| o.atlas.texel_chart(i)).collect();
+    let left = inpaint::inpaint(&mut o.kd, &o.observed, &covered, &chart, o.atlas.width, o.atlas.height, r);
+    if left > 0 {
+        // charts seen by no view: the mean of the observed texels
+        let m = o.mean_kd_observed();
+        let (kd, obs) = (&mut o.kd, &o.observed);
+        let seen: std::collections::HashSet<u32> = (0..n).filter(|&i| obs[i]).map(|i| chart[i]).collect();
+        for i in 0..n {
+            if covered[i] && !obs[i] && !seen.contains(&chart[i]) {
+                kd[i] = m.map(|v| v as f32);
+            }
+        }
+    }
+    inpaint::dilate(&mut o.kd, &covered, o.atlas.width, o.atlas.height, 4);
+    clamped
+}
+
+fn quartiles(v: &mut [f64]) -> (f64, f64) {
+    v.sort_by(f64::total_cmp);
+    let q = |f: f64| {
+        let x = f * (v.len() - 1) as f64;
+        let (i, t) = (x.floor() as usize, x - x.floor());
+        if i + 1 < v.len() { v[i] * (1.0 - t) + v[i + 1] * t } else { v[i] }
+    };
+    (q(0.25), q(0.75))
+}
+
+/// Runs the de-lighting. `log` receives one line per stage.
+pub fn delight(
+    desc: &SceneDesc,
+    views: &[View],
+    s: &DelightSettings,
+    log: &(dyn Fn(&str) + Sync),
+) -> Result<DelightResult> {
+    let t_all = std::time::Instant::now();
+    let mut timings = Vec::new();
+    let mut warnings = Vec::new();
+    let scene = Scene::build(desc)?;
+    if scene.light_sampler().is_none() {
+        return Err(Error::invalid(
+            "scene",
+            "has no emitter with positive power: the lighting must be known to separate it from the albedo",
+        ));
+    }
+    if views.is_empty() {
+        return Err(Error::invalid("views", "no view given"));
+    }
+    // selection
+    let selected: Vec<usize> = match &s.objects {
+        Some(names) => {
+            let mut v = Vec::new();
+            for n in names {
+                let k = scene.shapes.iter().position(|sh| &sh.id == n).ok_or_else(|| {
+                    let ids: Vec<&str> = scene.shapes.iter().map(|s| s.id.as_str()).collect();
+                    Error::invalid(
+                        format!("--objects {n}"),
+                        format!("no shape with that id (have: {})", ids.join(", ")),
+                    )
+                })?;
+                if scene.shapes[k].emission.is_some() {
+                    return Err(Error::invalid(
+                        format!("--objects {n}"),
+                        "is an emitter; only non-emitting shapes can be recovered",
+                    ));
+                }
+                v.push(k);
+            }
+            v
+        }
+        None => (0..scene.shapes.len()).filter(|&k| scene.shapes[k].emission.is_none()).collect(),
+    };
+    if selected.is_empty() {
+        return Err(Error::invalid("scene", "no non-emitting shape to recover"));
+    }
+    let cams: Vec<(Vec3, f32, usize)> =
+        views.iter().map(|v| (v.camera.origin(), v.camera.tan_half_x, v.camera.width)).collect();
+    // 1. atlases
+    let t0 = std::time::Instant::now();
+    let mut objects = Vec::new();
+    let mut skipped = Vec::new();
+    for &k in &selected {
+        let sh = &desc.shapes[k];
+        let res = s.resolution.unwrap_or_else(|| atlas::auto_resolution(&sh.mesh, &cams));
+        match atlas::build_atlas(&sh.mesh, res, s.keep_uvs) {
+            Ok(a) => {
+                let n = a.width * a.height;
+                log(&format!(
+                    "atlas {}: {}×{}, {} chart(s), {} UVs",
+                    sh.id,
+                    a.width,
+                    a.height,
+                    a.charts,
+                    if a.kept_uvs { "kept" } else { "new" }
+                ));
+                objects.push(ObjectResult {
+                    shape: k,
+                    id: sh.id.clone(),
+                    atlas: a,
+                    l: vec![[0.0; 3]; n],
+                    observed: vec![false; n],
+                    ed: vec![[0.0; 3]; n],
+                    ei: vec![[0.0; 3]; n],
+                    kd: vec![[0.0; 3]; n],
+                    near_emitter: false,
+                    seen_fraction: 0.0,
+                    clamped: 0,
+                });
+            }
+            Err(e) => {
+                warnings.push(format!("object '{}' skipped: UV unwrap failed: {e}", sh.id));
+                skipped.push((sh.id.clone(), format!("UV unwrap failed: {e}")));
+            }
+        }
+    }
+    if objects.is_empty() {
+        return Err(Error::invalid("objects", "no object could be unwrapped"));
+    }
+    timings.push(("unwrap".into(), t0.elapsed().as_secs_f64()));
+    // 2–3. luminance maps
+    let t0 = std::time::Instant::now();
+    let pure: Vec<PureBuffer> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
+    let (slo, shi) = scene.bounds();
+    let diag = (shi - slo).length();
+    let emit_boxes: Vec<(Vec3, Vec3)> = scene
+        .shapes
+        .iter()
+        .filter(|s| s.emission.is_some())
+        .map(|s| bbox(s.mesh.positions.iter().copied()))
+        .collect();
+    for o in &mut objects {
+        let (l, obs) = luminance_map(&scene, o.shape as u32, &o.atlas, views, &pure);
+        o.l = l;
+        o.observed = obs;
+        let covered = o.atlas.covered().max(1);
+        o.seen_fraction = o.observed.iter().filter(|&&b| b).count() as f64 / covered as f64;
+        let (lo, hi) = bbox(o.atlas.mesh.positions.iter().copied());
+        o.near_emitter = emit_boxes.iter().any(|(elo, ehi)| {
+            let gap = (*elo - hi).max(lo - *ehi).max(Vec3::ZERO);
+            gap.length() < 0.05 * diag
+        });
+        let chart: Vec<u32> = (0..o.l.len()).map(|i| o.atlas.texel_chart(i)).collect();
+        let (w, h) = (o.atlas.width, o.atlas.height);
+        if o.near_emitter {
+            inpaint::median3(&mut o.l, &o.observed, &chart, w, h);
+        }
+        let covered_mask: Vec<bool> = (0..o.l.len()).map(|i| o.atlas.texel_tri[i] != NO_TRI).collect();
+        let left = inpaint::inpaint(&mut o.l, &o.observed, &covered_mask, &chart, w, h, (w / 16).max(4));
+        if o.seen_fraction == 0.0 {
+            warnings.push(format!(
+                "object '{}' is seen by no view: its albedo is the scene average (flagged)",
+                o.id
+            ));
+        } else if left > 0 {
+            warnings.push(format!(
+                "object '{}': {left} texels in charts seen by no view were filled with the object's mean",
+                o.id
+            ));
+        }
+        log(&format!(
+            "luminance {}: {:.1} % of texels seen{}",
+            o.id,
+            100.0 * o.seen_fraction,
+            if o.near_emitter { ", near an emitter (median)" } else { "" }
+        ));
+    }
+    timings.push(("luminance".into(), t0.elapsed().as_secs_f64()));
+    // 4. direct irradiance
+    let t0 = std::time::Instant::now();
+    for (j, o) in objects.iter_mut().enumerate() {
+        o.ed = direct_irradiance(&scene, &o.atlas, s.direct_samples, s.seed, 0xED00 + j as u64);
+    }
+    timings.push(("direct".into(), t0.elapsed().as_secs_f64()));
+    // 5. initial Kd
+    let mut avg = [0f64; 3];
+    let mut aw = 0f64;
+    for o in &objects {
+        for i in 0..o.ed.len() {
+            let t = o.atlas.texel_tri[i];
+            if t != NO_TRI {
+                let a = o.atlas.texel_area[t as usize] as f64;
+                for c in 0..3 {
+                    avg[c] += a * o.ed[i][c] as f64;
+                }
+                aw += a;
+            }
+        }
+    }
+    let avg = avg.map(|v| (v / aw.max(1e-30)) as f32);
+    for o in &mut objects {
+        for i in 0..o.ed.len() {
+            for c in 0..3 {
+                let e = o.ed[i][c];
+                o.ei[i][c] = s.indirect_share * if e > 0.0 { e } else { avg[c] };
+            }
+        }
+        o.clamped = update_kd(o);
+    }
+    // unseen objects: scene-average albedo of the seen ones
+    fill_unseen(&mut objects);
+    // 6. iterations
+    let targets: Vec<Option<IrradianceTarget>> = (0..desc.shapes.len())
+        .map(|k| {
+            objects.iter().find(|o| o.shape == k).map(|o| IrradianceTarget {
+                width: o.atlas.width,
+                height: o.atlas.height,
+                texel_area: o.atlas.texel_area.clone(),
+            })
+        })
+        .collect();
+    let mut iterations = Vec::new();
+    let mut converged = false;
+    let mut light_paths = 0;
+    for k in 1..=s.iterations {
+        let t0 = std::time::Instant::now();
+        let rdesc = recovered_desc(desc, &objects);
+        let rscene = Scene::build(&rdesc)?;
+        let lt = LightTraceSettings {
+            paths: s.light_paths,
+            batch_size: 1 << 16,
+            max_depth: -1,
+            rr_depth: 5,
+            seed: s.seed.wrapping_add(k as u64),
+        };
+        let out = light_tracer::trace(&rscene, &targets, &lt, &|| {});
+        light_paths += out.paths;
+        if out.nonfinite > 0 {
+            warnings
+                .push(format!("iteration {k}: {} non-finite light-tracing deposits dropped", out.nonfinite));
+        }
+        let mut per_object = Vec::new();
+        let mut error_maps = Vec::new();
+        let mut direct_ratio = Vec::new();
+        let (mut gmax, mut gsum, mut gcount) = (0f64, 0f64, 0usize);
+        for o in &mut objects {
+            let m = out.maps[o.shape].as_ref().expect("target");
+            let r = s.smooth.unwrap_or((o.atlas.width / 64).max(1));
+            let cov = &o.atlas.coverage;
+            let ei_raw: Vec<[f32; 3]> = m
+                .indirect
+                .iter()
+                .zip(cov)
+                .map(|(e, &c)| e.map(|x| (x / c.max(1.0 / 16.0) as f64) as f32))
+                .collect();
+            let ei_r = smooth_in_charts(&ei_raw, &o.atlas, r);
+            // direct consistency (means over covered texels)
+            let (mut a, mut b) = (0f64, 0f64);
+            for i in 0..o.ed.len() {
+                if o.atlas.texel_tri[i] != NO_TRI {
+                    a += luminance(m.direct[i].map(|x| x as f32)) as f64 / cov[i].max(1.0 / 16.0) as f64;
+                    b += luminance(o.ed[i]) as f64;
+                }
+            }
+            direct_ratio.push(if b > 0.0 { a / b } else { f64::NAN });
+            // error map
+            let n = o.l.len();
+            let mut rel = vec![f32::NAN; n];
+            let mut vals = Vec::new();
+            let mut e_abs = vec![[0f32; 3]; n];
+            for i in 0..n {
+                if !o.observed[i] {
+                    continue;
+                }
+                let lr: [f32; 3] = std::array::from_fn(|c| o.kd[i][c] / PI * (o.ed[i][c] + ei_r[i][c]));
+                e_abs[i] = std::array::from_fn(|c| o.l[i][c] - lr[c]);
+                let y = luminance(o.l[i]);
+                if y > 0.0 {
+                    rel[i] = (y - luminance(lr)) / y;
+                    vals.push(rel[i] as f64);
+                }
+            }
+            let (mut omax, mut osum, mut ocount, mut outl) = (0f64, 0f64, 0usize, 0usize);
+            if !vals.is_empty() {
+                let (q1, q3) = quartiles(&mut vals);
+                let iqr = q3 - q1;
+                let (lo, hi) = (q1 - 1.5 * iqr, q3 + 1.5 * iqr);
+                for i in 0..n {
+                    let r = rel[i] as f64;
+                    if r.is_nan() {
+                        continue;
+                    }
+                    if r < lo || r > hi {
+                        outl += 1;
+                        e_abs[i] = [0.0; 3];
+                        continue;
+                    }
+                    omax = omax.max(r.abs());
+                    osum += r.abs();
+                    ocount += 1;
+                }
+            }
+            gmax = gmax.max(omax);
+            gsum += osum;
+            gcount += ocount;
+            per_object.push((omax, osum / ocount.max(1) as f64, outl));
+            error_maps.push(rel);
+            // update Ei
+            match s.update {
+                UpdateRule::FixedPoint => {
+                    // under-relaxed fixed point: the plain map oscillates (period 2) in a
+                    // closed, bright room; averaging also halves the Monte-Carlo variance
+                    for i in 0..n {
+                        for c in 0..3 {
+                            o.ei[i][c] = if k == 1 { ei_r[i][c] } else { 0.5 * (o.ei[i][c] + ei_r[i][c]) };
+                        }
+                    }
+                }
+                UpdateRule::Paper { alpha0 } => {
+                    let alpha = alpha0 / (1.0 + k as f32);
+                    for i in 0..n {
+                        for c in 0..3 {
+                            o.ei[i][c] = (o.ei[i][c] + alpha * o.kd[i][c] / PI * e_abs[i][c]).max(0.0);
+                        }
+                    }
+                }
+            }
+            o.clamped = update_kd(o);
+            if std::env::var("OPAL_DELIGHT_DEBUG").is_ok() {
+                let mut acc = [[0f64; 3]; 4];
+                let mut cnt = 0f64;
+                for i in 0..n {
+                    if o.observed[i] {
+                        cnt += 1.0;
+                        for c in 0..3 {
+                            acc[0][c] += o.l[i][c] as f64;
+                            acc[1][c] += o.ed[i][c] as f64;
+                            acc[2][c] += o.ei[i][c] as f64;
+                            acc[3][c] += o.kd[i][c] as f64;
+                        }
+                    }
+                }
+                log(&format!(
+                    "  {}: L {:.4?} Ed {:.4?} Ei {:.4?} Kd {:.4?} clamped {}",
+                    o.id,
+                    acc[0].map(|v| v / cnt),
+                    acc[1].map(|v| v / cnt),
+                    acc[2].map(|v| v / cnt),
+                    acc[3].map(|v| v / cnt),
+                    o.clamped
+                ));
+            }
+        }
+        fill_unseen(&mut objects);
+        let st = IterationStats {
+            iteration: k,
+            max_rel_error: gmax,
+            mean_rel_error: gsum / gcount.max(1) as f64,
+            per_object,
+            error_maps,
+            seconds: t0.elapsed().as_secs_f64(),
+            direct_ratio,
+        };
+        log(&format!(
+            "iteration {k}: max rel. error {:.2} %, mean {:.2} % ({:.1} s, {} light paths)",
+            100.0 * st.max_rel_error,
+            100.0 * st.mean_rel_error,
+            st.seconds,
+            s.light_paths
+        ));
+        let done = st.max_rel_error < s.tolerance;
+        iterations.push(st);
+        if done {
+            converged = true;
+            break;
+        }
+    }
+    timings.push(("iterations".into(), iterations.iter().map(|i| i.seconds).sum()));
+    timings.push(("total".into(), t_all.elapsed().as_secs_f64()));
+    Ok(DelightResult { objects, skipped, iterations, converged, warnings, timings, light_paths })
+}
+
+fn fill_unseen(objects: &mut [ObjectResult]) {
+    let mut acc = [0f64; 3];
+    let mut w = 0f64;
+    for o in objects.iter().filter(|o| o.seen_fraction > 0.0) {
+        let m = o.mean_kd();
+        let a = o.atlas.mesh.area();
+        for c in 0..3 {
+            acc[c] += a * m[c];
+        }
+        w += a;
+    }
+    if w <= 0.0 {
+        return;
+    }
+    let mean = acc.map(|v| (v / w) as f32);
+    for o in objects.iter_mut().filter(|o| o.seen_fraction == 0.0) {
+        o.kd.iter_mut().for_each(|k| *k = mean);
+    }
+}
+
+/// Statistics of an image region (the paper's tables 1–3).
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct RegionStats {
+    /// Pixels in the region.
+    pub pixels: usize,
+    /// Mean Rec. 709 luminance.
+    pub mean_luminance: f64,
+    /// RMS deviation of the luminance from its mean.
+    pub luminance_rms: f64,
+    /// Mean linear RGB.
+    pub mean_rgb: [f64; 3],
+    /// CIE 1931 xy chromaticity of the mean RGB (linear Rec. 709 / sRGB primaries, D65).
+    pub xy: [f64; 2],
+}
+
+/// Region statistics of `img` over the pixels where `mask` is true (non-finite pixels skipped).
+pub fn region_stats(img: &Image, mask: &[bool]) -> RegionStats {
+    let mut n = 0usize;
+    let mut rgb = [0f64; 3];
+    let mut ys = Vec::new();
+    for (p, &m) in img.data.iter().zip(mask) {
+        if m && p.is_finite() {
+            n += 1;
+            for c in 0..3 {
+                rgb[c] += p[c] as f64;
+            }
+            ys.push(luminance([p[0], p[1], p[2]]) as f64);
+        }
+    }
+    let nf = n.max(1) as f64;
+    let rgb = rgb.map(|v| v / nf);
+    let my = ys.iter().sum::<f64>() / nf;
+    let rms = (ys.iter().map(|y| (y - my).powi(2)).sum::<f64>() / nf).sqrt();
+    let x = 0.4124 * rgb[0] + 0.3576 * rgb[1] + 0.1805 * rgb[2];
+    let y = 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
+    let z = 0.0193 * rgb[0] + 0.1192 * rgb[1] + 0.9505 * rgb[2];
+    let s = (x + y + z).max(1e-30);
+    RegionStats { pixels: n, mean_luminance: my, luminance_rms: rms, mean_rgb: rgb, xy: [x / s, y / s] }
+}
+
+/// Pixel masks of the objects in a view: `mask[k][pixel]` true where the pixel shows shape
+/// `shapes[k]` entirely (see [`views::pure_buffer`]).
+pub fn object_masks(scene: &Scene, view: &View, shapes: &[usize]) -> Vec<Vec<bool>> {
+    let pb = views::pure_buffer(scene, &view.camera);
+    shapes.iter().map(|&s| pb.shape.iter().map(|&x| x != MIXED && x as usize == s).collect()).collect()
+}
+
+/// A ray through the centre of pixel (x, y) of a view (helper for tests and tools).
+pub fn pixel_ray(view: &View, x: usize, y: usize) -> Ray {
+    view.camera.generate_ray(Vec2::new(x as f32 + 0.5, y as f32 + 0.5))
+}

@@ -1,0 +1,204 @@
+//! De-lighting (method C) end to end.
+//!
+//! * `transforms_match_scene_sensors`: the NeRF-style `transforms.json` of the reference Cornell
+//!   box (OpenGL axes) converts to the Mitsuba `to_world` of the scene's sensors.
+//! * `round_trip_small_cbox`: views of the Cornell box rendered by Opal's own path tracer at the
+//!   true albedos (64×64, 8 views) → de-lighting → albedos and back-wall texture vs the truth.
+//! * `mitsuba_cbox_acceptance` (ignored; `OPAL_CBOX_DIR=/work/shared/reference/mitsuba/cbox
+//!   cargo test -p opal-inverse --test delight -- --ignored --nocapture`): the independent
+//!   Mitsuba 3 data set, 8 views 256×256.
+
+use opal::image::Image;
+use opal::integrator::path::{PathSettings, render};
+use opal::math::Vec2;
+use opal::scene::Scene;
+use opal::scene::desc::{SceneDesc, TextureDesc};
+use opal_inverse::delight::views::{View, read_views};
+use opal_inverse::delight::{DelightResult, DelightSettings, delight};
+use std::path::{Path, PathBuf};
+
+fn data() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox")
+}
+
+fn load(path: &Path) -> SceneDesc {
+    opal::scene::load::load_mitsuba_xml(path, &[]).unwrap()
+}
+
+#[test]
+fn transforms_match_scene_sensors() {
+    let desc = load(&data().join("scene.xml"));
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data().join("transforms.json")).unwrap()).unwrap();
+    let frames = j["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), desc.sensors.len());
+    for (f, s) in frames.iter().zip(&desc.sensors) {
+        let m: Vec<Vec<f32>> = f["transform_matrix"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r.as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect())
+            .collect();
+        let gl = opal::math::Mat4::from_cols_array_2d(&[
+            [m[0][0], m[1][0], m[2][0], m[3][0]],
+            [m[0][1], m[1][1], m[2][1], m[3][1]],
+            [m[0][2], m[1][2], m[2][2], m[3][2]],
+            [m[0][3], m[1][3], m[2][3], m[3][3]],
+        ]);
+        let mi = opal_inverse::delight::views::opengl_to_mitsuba(gl);
+        let d = (mi - s.to_world).to_cols_array().iter().fold(0f32, |a, b| a.max(b.abs()));
+        assert!(d < 1e-5, "sensor {}: max abs diff {d}", s.id);
+        let fov = f["camera_angle_x"].as_f64().unwrap().to_degrees() as f32;
+        assert!((fov - s.fov_x_deg).abs() < 1e-3, "{fov} vs {}", s.fov_x_deg);
+    }
+}
+
+/// PSNR (peak 1) of the recovered back-wall texture against the truth, over the texels seen by
+/// some view; the recovered texture is looked up at the truth's texel centres (same UVs).
+fn backwall_psnr(r: &DelightResult, truth: &Image) -> (f64, usize) {
+    let o = r.objects.iter().find(|o| o.id == "back_wall").unwrap();
+    assert!(o.atlas.kept_uvs);
+    let kd = o.kd_image();
+    let (w, h) = (o.atlas.width, o.atlas.height);
+    let mut se = 0f64;
+    let mut n = 0usize;
+    for y in 0..truth.height {
+        for x in 0..truth.width {
+            let uv = Vec2::new((x as f32 + 0.5) / truth.width as f32, (y as f32 + 0.5) / truth.height as f32);
+            let (tx, ty) = ((uv.x * w as f32) as usize, (uv.y * h as f32) as usize);
+            if !o.observed[ty.min(h - 1) * w + tx.min(w - 1)] {
+                continue;
+            }
+            let got = opal::scene::desc::BitmapDesc {
+                image: std::sync::Arc::new(kd.clone()),
+                filter: opal::scene::desc::FilterType::Bilinear,
+                wrap: opal::scene::desc::WrapMode::Clamp,
+                path: "kd".into(),
+            }
+            .eval(uv);
+            let t = truth.get(x, y);
+            for c in 0..3 {
+                se += ((got[c] - t[c]) as f64).powi(2);
+            }
+            n += 3;
+        }
+    }
+    (10.0 * (1.0 / (se / n as f64)).log10(), n / 3)
+}
+
+fn truth_albedos(desc: &SceneDesc) -> Vec<(String, [f32; 3])> {
+    desc.shapes
+        .iter()
+        .filter(|s| s.emitter.is_none())
+        .filter_map(|s| match &s.bsdf {
+            opal::scene::desc::BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(c) } => {
+                Some((s.id.clone(), c.0))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+fn report(r: &DelightResult, desc: &SceneDesc) -> f64 {
+    let mut worst = 0f64;
+    for (id, t) in truth_albedos(desc) {
+        let o = r.objects.iter().find(|o| o.id == id).unwrap();
+        let m = o.mean_kd_observed();
+        let rel: Vec<f64> = (0..3).map(|c| m[c] / t[c] as f64 - 1.0).collect();
+        println!(
+            "{id:18} kd {:.4} {:.4} {:.4}  truth {:.4} {:.4} {:.4}  rel {:+.2}% {:+.2}% {:+.2}%  seen {:.0}%",
+            m[0],
+            m[1],
+            m[2],
+            t[0],
+            t[1],
+            t[2],
+            100.0 * rel[0],
+            100.0 * rel[1],
+            100.0 * rel[2],
+            100.0 * o.seen_fraction
+        );
+        worst = rel.iter().fold(worst, |a, b| a.max(b.abs()));
+    }
+    for it in &r.iterations {
+        println!(
+            "iteration {}: max {:.2}% mean {:.2}% direct ratio {:?} ({:.1} s)",
+            it.iteration,
+            100.0 * it.max_rel_error,
+            100.0 * it.mean_rel_error,
+            it.direct_ratio,
+            it.seconds
+        );
+    }
+    println!("timings {:?}", r.timings);
+    worst
+}
+
+#[test]
+fn round_trip_small_cbox() {
+    let mut desc = load(&data().join("scene.xml"));
+    let res = 32;
+    for s in &mut desc.sensors {
+        s.width = res;
+        s.height = res;
+    }
+    let scene = Scene::build(&desc).unwrap();
+    let ps = PathSettings { spp: 256, max_depth: -1, rr_depth: 5, hide_emitters: false, seed: 7 };
+    let views: Vec<View> = (0..scene.cameras.len())
+        .map(|c| {
+            let out = render(&scene, c, &ps, &|| {});
+            assert_eq!(out.nonfinite, 0);
+            View {
+                name: scene.cameras[c].id.clone(),
+                path: PathBuf::from(format!("mem{c}")),
+                camera: scene.cameras[c].clone(),
+                image: out.image,
+                bad_pixels: 0,
+            }
+        })
+        .collect();
+    let s = DelightSettings {
+        resolution: Some(32),
+        light_paths: 500_000,
+        iterations: 4,
+        direct_samples: 64,
+        tolerance: 0.0,
+        ..Default::default()
+    };
+    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
+    let worst = report(&r, &desc);
+    let truth = opal::image::read::read_image(&data().join("textures/backwall_albedo.exr")).unwrap();
+    let (psnr, n) = backwall_psnr(&r, &truth);
+    println!("back wall PSNR {psnr:.2} dB over {n} texels");
+    // Tolerances for this deliberately tiny configuration (32×32 views at 256 spp, 32² texture
+    // maps, 500 k light paths per pass, 4 passes): the measured worst channel error is ~4 %
+    // (dark channels of the red wall, whose 4 % share of the luminance makes them noisy; the
+    // bright channels are within ~3 %), so 6 % catches a wrong estimator (the bugs found while
+    // writing this — lost border deposits, unrelaxed oscillation — gave 15–22 %) without
+    // flaking. 32-pixel views cannot resolve the 256² back-wall texture: the PSNR bound only
+    // checks orientation (a flipped texture gives < 12 dB).
+    assert!(worst < 0.06, "worst relative albedo error {worst}");
+    assert!(psnr > 15.0, "{psnr}");
+}
+
+#[test]
+#[ignore = "needs OPAL_CBOX_DIR (the Mitsuba 3 reference data set); ~1–2 min"]
+fn mitsuba_cbox_acceptance() {
+    let dir = PathBuf::from(std::env::var("OPAL_CBOX_DIR").expect("set OPAL_CBOX_DIR"));
+    let desc = load(&dir.join("scene.xml"));
+    let (views, warn) = read_views(&dir.join("transforms.json")).unwrap();
+    assert!(warn.is_empty(), "{warn:?}");
+    let paths: u64 =
+        std::env::var("OPAL_DELIGHT_PATHS").ok().and_then(|v| v.parse().ok()).unwrap_or(20_000_000);
+    let s = DelightSettings { light_paths: paths, iterations: 5, tolerance: 0.0, ..Default::default() };
+    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
+    let worst = report(&r, &desc);
+    let truth = opal::image::read::read_image(&dir.join("textures/backwall_albedo.exr")).unwrap();
+    let (psnr, n) = backwall_psnr(&r, &truth);
+    println!(
+        "back wall PSNR {psnr:.2} dB over {n} texels; worst constant-object error {:.2} %",
+        100.0 * worst
+    );
+    assert!(worst < 0.01, "acceptance: mean albedo within 1 %: worst {worst}");
+    assert!(psnr >= 38.0, "acceptance: back wall PSNR ≥ 38 dB: {psnr}");
+}
