@@ -7,7 +7,7 @@
 #![warn(missing_docs)]
 
 pub mod brdf_energy;
+pub mod delight;
 pub mod export;
 pub mod measured;
 pub mod ndf_fit;
-pub mod delight;
