@@ -154,3 +154,35 @@ fn bad_inputs_exit_2_with_clear_messages() {
         &["scene.xml", "bad.xml", "plugin.xml", "nan.obj", "flat.obj", "tex.png", "blind.xml"],
     );
 }
+
+#[test]
+fn renders_method_b_lobe_plugins_from_xml() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let lobe = r#"<shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><translate y="0.01"/></transform>
+        <bsdf type="pow16"><float name="exponent" value="20"/><string name="normalisation" value="paper"/><rgb name="specular_reflectance" value="0.9, 0.8, 0.7"/></bsdf></shape>"#;
+    let s = write_scene(d, lobe, "0.3");
+    let out = opal()
+        .arg("render")
+        .arg(&s)
+        .arg("-o")
+        .arg(d.join("lobe.exr"))
+        .args(["--spp", "4", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(report["mean_rgb"][0].as_f64().unwrap() > 0.0);
+    // an unknown parameter of a lobe plugin is an error naming it
+    let bad =
+        write_scene(d, r#"<bsdf type="phong" id="p"><float name="shininess" value="3"/></bsdf>"#, "0.3");
+    let out = opal().arg("render").arg(&bad).arg("-o").arg(d.join("bad.exr")).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("shininess"));
+    // an invalid value is refused by the shared registry
+    let bad =
+        write_scene(d, r#"<bsdf type="pow16" id="p"><float name="exponent" value="-1"/></bsdf>"#, "0.3");
+    let out = opal().arg("render").arg(&bad).arg("-o").arg(d.join("bad.exr")).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("exponent"));
+}

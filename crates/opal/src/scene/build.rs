@@ -256,6 +256,7 @@ impl Scene {
             BsdfDesc::Diffuse { reflectance } => {
                 Bxdfs::Lambert(Lambert::new(eval_texture(reflectance, si.uv)))
             }
+            BsdfDesc::Lobe(b) => b.clone(),
             BsdfDesc::TwoSided(_) => unreachable!("nested twosided rejected at build"),
         };
         (frame, bxdf)
@@ -285,7 +286,7 @@ fn validate_bsdf(id: &str, b: &BsdfDesc) -> Result<()> {
             }
             Ok(())
         }
-        BsdfDesc::Diffuse { .. } => Ok(()),
+        BsdfDesc::Diffuse { .. } | BsdfDesc::Lobe(_) => Ok(()),
         BsdfDesc::TwoSided(inner) => match inner.as_ref() {
             BsdfDesc::TwoSided(_) => {
                 Err(Error::invalid(format!("bsdf of shape '{id}'"), "twosided inside twosided"))

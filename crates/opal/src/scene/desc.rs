@@ -114,6 +114,9 @@ pub enum BsdfDesc {
     },
     /// Mitsuba `twosided`: the same BSDF on both sides.
     TwoSided(Box<BsdfDesc>),
+    /// A method-B lobe plugin (`phong`, `blinn`, `schlick`, `lyon`, `pow16`,
+    /// `microfacet_conductor`), already built by `opal::bsdf::registry::build_plugin`.
+    Lobe(crate::bsdf::Bxdfs),
 }
 
 /// Perspective camera (Mitsuba `perspective`).

@@ -44,7 +44,7 @@ const MAX_INCLUDE_DEPTH: usize = 32;
 /// `Loader::instantiate` + its name here (a unit test checks the two agree).
 pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
     ("shape", &["obj", "ply", "rectangle", "cube", "sphere"]),
-    ("bsdf", &["diffuse", "twosided"]),
+    ("bsdf", &["diffuse", "twosided", "phong", "blinn", "schlick", "lyon", "pow16", "microfacet_conductor"]),
     ("texture", &["bitmap"]),
     ("emitter", &["area", "point"]),
     ("sensor", &["perspective"]),
@@ -956,6 +956,52 @@ impl Loader {
                 p.finish("one nested <bsdf>")?;
                 let Some((Object::Bsdf(b), _)) = inner.into_iter().next() else { unreachable!() };
                 Object::Bsdf(BsdfDesc::TwoSided(Box::new(b)))
+            }
+            ("bsdf", "phong" | "blinn" | "schlick" | "lyon" | "pow16" | "microfacet_conductor") => {
+                use crate::bsdf::registry::{ParamValue, PluginParams, build_plugin};
+                const KNOWN: &[&str] = &[
+                    "specular_reflectance",
+                    "exponent",
+                    "normalisation",
+                    "A",
+                    "B",
+                    "form",
+                    "w",
+                    "distribution",
+                    "alpha",
+                    "eta",
+                    "k",
+                    "shadowing",
+                ];
+                let mut pp = PluginParams::new(&ty);
+                for q in std::mem::take(&mut p.params) {
+                    if !KNOWN.contains(&q.name.as_str()) {
+                        return Err(q.loc.err(format!(
+                            "{}: unknown parameter `{}` (supported: {})",
+                            e.describe(),
+                            q.name,
+                            KNOWN.join(", ")
+                        )));
+                    }
+                    let v = match &q.val {
+                        Val::Float(x) => ParamValue::Float(*x),
+                        Val::Int(i) => ParamValue::Float(*i as f64),
+                        Val::Str(s) => ParamValue::Str(s.clone()),
+                        Val::Rgb(c) => ParamValue::Rgb(*c),
+                        other => {
+                            return Err(q.loc.err(format!(
+                                "parameter `{}` of {} must be a float, string or rgb, got {}",
+                                q.name,
+                                e.describe(),
+                                other.type_name()
+                            )));
+                        }
+                    };
+                    pp.values.insert(q.name.clone(), v);
+                }
+                p.finish("the method-B lobe parameters")?;
+                let b = build_plugin(&pp).map_err(|err| e.loc.err(format!("{}: {err}", e.describe())))?;
+                Object::Bsdf(BsdfDesc::Lobe(b))
             }
             ("texture", "bitmap") => Object::Texture(TextureDesc::Bitmap(self.bitmap(e, &mut p)?)),
             ("shape", "obj" | "ply" | "rectangle" | "cube" | "sphere") => {
