@@ -36,6 +36,7 @@ pub struct Camera {
     /// Samples per pixel requested by the scene, if any.
     pub spp: Option<u32>,
     origin: Vec3,
+    world_to_camera: Mat4,
 }
 
 impl Camera {
@@ -54,6 +55,7 @@ impl Camera {
             far_clip: d.far_clip,
             spp: d.spp,
             origin: d.to_world.w_axis.truncate(),
+            world_to_camera: d.to_world.inverse(),
         }
     }
 
@@ -90,7 +92,7 @@ impl Camera {
     /// Film position (pixels) where the world point `p` projects, if it is in front of the
     /// camera and inside the film. Used by light tracing and de-lighting.
     pub fn project(&self, p: Vec3) -> Option<Vec2> {
-        let local = self.to_world.inverse().transform_point3(p);
+        let local = self.world_to_camera.transform_point3(p);
         if local.z <= 0.0 {
             return None;
         }
