@@ -1,7 +1,7 @@
 """Extract pixel-centre hit positions from Mitsuba's AOV EXRs (reference Cornell box) into a
 small CSV used by crates/opal/tests/camera_rays.rs: for each view, every 41st pixel that hits
 geometry: view, i, j, position x y z (the ray through pixel centre (i+0.5, j+0.5) hits there).
-Usage: python extract_camera_rays.py ../shared/reference/mitsuba/cbox OUT.csv
+Usage: python extract_camera_rays.py <shared>/reference/mitsuba/cbox OUT.csv
 Needs: pip install OpenEXR numpy"""
 import sys, OpenEXR, numpy as np
 root, out = sys.argv[1], sys.argv[2]

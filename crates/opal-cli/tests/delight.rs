@@ -165,7 +165,7 @@ fn bad_input_exits_2_without_output() {
 }
 
 /// Acceptance on the independent Mitsuba 3 data (ignored: ~10 min on a busy 2-core machine):
-/// `OPAL_CBOX_DIR=/work/shared/reference/mitsuba/cbox cargo test -p opal-cli --test delight
+/// `OPAL_CBOX_DIR=<shared>/reference/mitsuba/cbox cargo test -p opal-cli --test delight
 /// acceptance -- --ignored --nocapture`; set `OPAL_DELIGHT_OUT=DIR` to evaluate an existing
 /// output folder instead of running. Checks: mean albedo of every constant-colour object within
 /// 1 % (per channel, texels seen), back-wall PSNR ≥ 38 dB where seen, max region error ≤ 1.8 %.

@@ -2,7 +2,7 @@
 //!
 //! Format (documented in `docs/formats.md`): a CSV file with a header row naming at least the
 //! columns `incidence_deg,side,detector_deg,value` and optionally `value_stderr`, in any order;
-//! other columns are ignored (so the files of `../shared/reference/mitsuba/gonio` and of
+//! other columns are ignored (so the files of `<shared>/reference/mitsuba/gonio` and of
 //! `opal gonio simulate` load as they are). `side` is `R` (reflected) or `T` (transmitted);
 //! `detector_deg` is the signed angle of the detector in the plane of incidence (the
 //! conventions of `opal::gonio`); `value` is the intensity per unit incident power (1/sr);

@@ -4,7 +4,7 @@
 //!   box (OpenGL axes) converts to the Mitsuba `to_world` of the scene's sensors.
 //! * `round_trip_small_cbox`: views of the Cornell box rendered by Opal's own path tracer at the
 //!   true albedos (64×64, 8 views) → de-lighting → albedos and back-wall texture vs the truth.
-//! * `mitsuba_cbox_acceptance` (ignored; `OPAL_CBOX_DIR=/work/shared/reference/mitsuba/cbox
+//! * `mitsuba_cbox_acceptance` (ignored; `OPAL_CBOX_DIR=<shared>/reference/mitsuba/cbox
 //!   cargo test -p opal-inverse --test delight -- --ignored --nocapture`): the independent
 //!   Mitsuba 3 data set, 8 views 256×256.
 

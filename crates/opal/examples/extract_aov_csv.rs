@@ -5,7 +5,7 @@
 //!
 //! ```text
 //! cargo run -p opal --example extract_aov_csv -- \
-//!     ../shared/reference/mitsuba/cbox/aov/view_00_center.exr crates/opal/tests/data/cbox/backwall_aov_samples.csv
+//!     <shared>/reference/mitsuba/cbox/aov/view_00_center.exr crates/opal/tests/data/cbox/backwall_aov_samples.csv
 //! ```
 use std::fmt::Write;
 

@@ -1,5 +1,5 @@
 //! The single-scattering rough plate against the Mitsuba 3 reference goniophotometer data
-//! (`tests/data/gonio/`, copied from `../shared/reference/mitsuba/gonio`, 16 M photons per
+//! (`tests/data/gonio/`, copied from `<shared>/reference/mitsuba/gonio`, 16 M photons per
 //! incidence): every case (GGX α = 0.15, 0.35, Beckmann α = 0.25; smooth and rough entry;
 //! incidences 0–75°).
 //!

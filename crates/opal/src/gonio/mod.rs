@@ -3,7 +3,7 @@
 //! reflections until it leaves the plate, is absorbed or exceeds the interaction limit, and is
 //! counted by circular detectors on the reflected (R, z > 0) and transmitted (T, z < 0) side.
 //!
-//! Geometry (same as `../shared/reference/mitsuba/gonio`): plate normal +z, lit face at z = 0
+//! Geometry (same as `<shared>/reference/mitsuba/gonio`): plate normal +z, lit face at z = 0
 //! (outward normal +z), back face at z = −thickness (outward normal −z). The beam propagates
 //! along `k = (sin t cos φb, sin t sin φb, −cos t)` (incidence t, azimuth φb) with directions
 //! uniform in solid angle inside a cone of half-angle `divergence`. A detector at signed angle
