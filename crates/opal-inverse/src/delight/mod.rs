@@ -658,7 +658,7 @@ pub fn delight(
         let rscene = Scene::build(&rdesc)?;
         let lt = LightTraceSettings {
             paths: s.light_paths,
-            batch_size: 1 << 16,
+            batch_size: 1 << 20,
             max_depth: -1,
             rr_depth: 5,
             seed: s.seed.wrapping_add(k as u64),

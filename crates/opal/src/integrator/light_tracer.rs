@@ -55,7 +55,7 @@ pub struct LightTraceSettings {
 
 impl Default for LightTraceSettings {
     fn default() -> Self {
-        LightTraceSettings { paths: 1_000_000, batch_size: 1 << 16, max_depth: -1, rr_depth: 5, seed: 0 }
+        LightTraceSettings { paths: 1_000_000, batch_size: 1 << 18, max_depth: -1, rr_depth: 5, seed: 0 }
     }
 }
 
@@ -117,41 +117,48 @@ pub fn trace(
     // waves bound the memory (one set of maps per batch in flight, at most 8: machines that
     // report many logical CPUs otherwise multiply the map memory); the wave size does not
     // change the result since batches are merged in index order.
-    let wave = (2 * rayon::current_num_threads().max(1) as u64).min(8);
+    let wave = (2 * rayon::current_num_threads().max(1) as u64).min(8).min(n_batches) as usize;
+    // One accumulator per batch in flight, allocated once and reused: merging a batch into the
+    // result also zeroes its accumulator (one pass over memory instead of alloc + zero + merge).
+    let mut accs: Vec<Vec<Option<IrradianceMaps>>> = (0..wave).map(|_| empty_maps(targets)).collect();
     let mut b0 = 0;
     while b0 < n_batches {
-        let b1 = (b0 + wave).min(n_batches);
-        let parts: Vec<(Vec<Option<IrradianceMaps>>, u64)> = (b0..b1)
-            .into_par_iter()
-            .map(|b| {
-                let mut acc = empty_maps(targets);
+        let b1 = (b0 + wave as u64).min(n_batches);
+        let bad: Vec<u64> = accs[..(b1 - b0) as usize]
+            .par_iter_mut()
+            .enumerate()
+            .map(|(i, acc)| {
+                let b = b0 + i as u64;
                 let mut bad = 0u64;
                 let start = b * batch;
                 let end = ((b + 1) * batch).min(s.paths);
                 let mut rng = Rng::new(s.seed, 0x4c54, b);
                 for _ in start..end {
-                    trace_path(scene, sampler, targets, &mut acc, &mut rng, s, inv_n, &mut bad);
+                    trace_path(scene, sampler, targets, acc, &mut rng, s, inv_n, &mut bad);
                 }
                 on_batch();
-                (acc, bad)
+                bad
             })
             .collect();
-        for (part, bad) in parts {
+        // merge in batch order (deterministic), per shape in parallel
+        for (i, bad) in bad.into_iter().enumerate() {
             nonfinite += bad;
-            for (m, p) in maps.iter_mut().zip(part) {
-                if let (Some(m), Some(p)) = (m.as_mut(), p) {
-                    for (a, b) in m.direct.iter_mut().zip(&p.direct) {
+            maps.par_iter_mut().zip(accs[i].par_iter_mut()).for_each(|(m, p)| {
+                if let (Some(m), Some(p)) = (m.as_mut(), p.as_mut()) {
+                    for (a, b) in m.direct.iter_mut().zip(p.direct.iter_mut()) {
                         for c in 0..3 {
                             a[c] += b[c];
                         }
+                        *b = [0.0; 3];
                     }
-                    for (a, b) in m.indirect.iter_mut().zip(&p.indirect) {
+                    for (a, b) in m.indirect.iter_mut().zip(p.indirect.iter_mut()) {
                         for c in 0..3 {
                             a[c] += b[c];
                         }
+                        *b = [0.0; 3];
                     }
                 }
-            }
+            });
         }
         b0 = b1;
     }
@@ -185,13 +192,21 @@ fn trace_path(
     }
     let mode = TransportMode::Importance;
     let mut depth = 0i32;
+    // The texel of a deposit is a random location in maps of up to millions of texels: a cache
+    // miss. Deposits are therefore deferred by one segment: the texel's cache line is prefetched
+    // when it is found and the addition is done after the next ray is traced (same values, same
+    // order of additions, so the result is unchanged).
+    let mut pending: Option<Pending> = None;
     while let Some(si) = scene.intersect(&ray) {
+        if let Some(p) = pending.take() {
+            p.apply(acc);
+        }
         depth += 1;
         let wo = -ray.d;
         let front = wo.dot(si.ng) > 0.0;
         let shape = si.shape as usize;
         if front {
-            if let (Some(t), Some(m)) = (&targets[shape], acc[shape].as_mut()) {
+            if let (Some(t), Some(m)) = (&targets[shape], acc[shape].as_ref()) {
                 let local = (si.prim - scene.shapes[shape].first_prim) as usize;
                 let ta = t.texel_area.get(local).copied().unwrap_or(0.0);
                 if ta > 0.0 {
@@ -200,14 +215,10 @@ fn trace_path(
                     let e = beta.to_f64();
                     if e.iter().all(|v| v.is_finite()) {
                         let k = inv_n / ta as f64;
-                        let cell = if depth == 1 {
-                            &mut m.direct[y * t.width + x]
-                        } else {
-                            &mut m.indirect[y * t.width + x]
-                        };
-                        for c in 0..3 {
-                            cell[c] += e[c] * k;
-                        }
+                        let index = y * t.width + x;
+                        let direct = depth == 1;
+                        prefetch(if direct { &m.direct[index] } else { &m.indirect[index] });
+                        pending = Some(Pending { shape, index, direct, value: e.map(|v| v * k) });
                     } else {
                         *bad += 1;
                     }
@@ -237,6 +248,43 @@ fn trace_path(
             beta *= 1.0 / q;
         }
     }
+    if let Some(p) = pending {
+        p.apply(acc);
+    }
+}
+
+/// A deposit waiting for its cache line (see `trace_path`).
+struct Pending {
+    shape: usize,
+    index: usize,
+    direct: bool,
+    value: [f64; 3],
+}
+
+impl Pending {
+    #[inline]
+    fn apply(self, acc: &mut [Option<IrradianceMaps>]) {
+        if let Some(m) = acc[self.shape].as_mut() {
+            let cell = if self.direct { &mut m.direct[self.index] } else { &mut m.indirect[self.index] };
+            for c in 0..3 {
+                cell[c] += self.value[c];
+            }
+        }
+    }
+}
+
+/// Hint to bring the cache line of `v` close to the core (no effect on results).
+#[inline(always)]
+fn prefetch<T>(v: &T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // SAFETY: SSE is part of the x86-64 baseline, so the instruction exists; a prefetch
+        // never faults and has no architectural effect, whatever the address.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(v as *const T as *const i8) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = v;
 }
 
 /// Survival probability for Russian roulette: the throughput relative to the path's initial

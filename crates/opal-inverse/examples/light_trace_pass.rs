@@ -1,0 +1,75 @@
+//! One de-lighting light-tracing pass on the bundled Cornell box, timed (method C, issue
+//! "100 M light paths on the Cornell box ≤ 20 s on 2 cores").
+//!
+//! The texture maps are the ones `opal delight` builds for the 8 views of the reference box
+//! (adaptive resolution from the bundled scene's sensors: ≈ 1.16 M texels over 7 objects), the
+//! materials the scene's own. Prints paths, wall seconds, CPU seconds and paths/s.
+//!
+//! Run: `cargo run --release -p opal-inverse --example light_trace_pass -- [PATHS] [THREADS]`
+//! (PATHS default 100 000 000).
+
+use opal::integrator::light_tracer::{self, IrradianceTarget, LightTraceSettings};
+use opal::math::Vec3;
+use opal::scene::{Scene, load_mitsuba_xml};
+use opal_inverse::delight::atlas;
+use std::path::PathBuf;
+
+fn cpu_seconds() -> f64 {
+    // utime + stime of this process from /proc (Linux); NaN elsewhere
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = s.rsplit_once(')')?.1.split_whitespace().collect::<Vec<_>>().clone();
+            let ut: f64 = rest.get(11)?.parse().ok()?;
+            let st: f64 = rest.get(12)?.parse().ok()?;
+            Some((ut + st) / 100.0)
+        })
+        .unwrap_or(f64::NAN)
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let paths: u64 = args.get(1).map(|a| a.parse().expect("PATHS")).unwrap_or(100_000_000);
+    let threads: usize = args.get(2).map(|a| a.parse().expect("THREADS")).unwrap_or(0);
+    if threads > 0 {
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build_global().expect("pool");
+    }
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox/scene.xml");
+    let mut desc = load_mitsuba_xml(&p, &[]).expect("bundled scene loads");
+    let cams: Vec<(Vec3, f32, usize)> = desc
+        .sensors
+        .iter()
+        .map(|s| (s.to_world.w_axis.truncate(), (0.5 * s.fov_x_deg.to_radians()).tan(), s.width))
+        .collect();
+    let mut targets = Vec::new();
+    let mut texels = 0;
+    for sh in &mut desc.shapes {
+        if sh.emitter.is_some() {
+            targets.push(None);
+            continue;
+        }
+        let res = std::env::var("RES")
+            .ok()
+            .map(|r| r.parse().expect("RES"))
+            .unwrap_or_else(|| atlas::auto_resolution(&sh.mesh, &cams));
+        let a = atlas::build_atlas(&sh.mesh, res, true).expect("atlas");
+        texels += a.width * a.height;
+        targets.push(Some(IrradianceTarget { width: a.width, height: a.height, texel_area: a.texel_area }));
+        sh.mesh = a.mesh;
+    }
+    let scene = Scene::build(&desc).expect("scene builds");
+    let batch: u64 = std::env::var("BATCH").ok().map(|b| b.parse().expect("BATCH")).unwrap_or(1 << 20);
+    let s = LightTraceSettings { paths, seed: 1, batch_size: batch, ..Default::default() };
+    let (c0, t0) = (cpu_seconds(), std::time::Instant::now());
+    let out = light_tracer::trace(&scene, &targets, &s, &|| {});
+    let (wall, cpu) = (t0.elapsed().as_secs_f64(), cpu_seconds() - c0);
+    let total: f64 = out.maps.iter().flatten().map(|m| m.indirect.iter().map(|v| v[1]).sum::<f64>()).sum();
+    println!(
+        "paths {paths}  texels {texels}  threads {}  wall {wall:.2} s  cpu {cpu:.2} s  {:.3} M paths/s  \
+         {:.3} M paths/cpu-s  (checksum {total:.6e}, nonfinite {})",
+        rayon::current_num_threads(),
+        paths as f64 / wall / 1e6,
+        paths as f64 / cpu / 1e6,
+        out.nonfinite
+    );
+}
