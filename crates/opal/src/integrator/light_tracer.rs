@@ -266,8 +266,8 @@ impl Pending {
     fn apply(self, acc: &mut [Option<IrradianceMaps>]) {
         if let Some(m) = acc[self.shape].as_mut() {
             let cell = if self.direct { &mut m.direct[self.index] } else { &mut m.indirect[self.index] };
-            for c in 0..3 {
-                cell[c] += self.value[c];
+            for (a, v) in cell.iter_mut().zip(self.value) {
+                *a += v;
             }
         }
     }
