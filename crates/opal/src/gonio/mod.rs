@@ -25,8 +25,10 @@
 //! average), its standard error, and `bsdf` = Σ(w/|cos θ|)/(N Ω) (BRDF/BTDF-like cone
 //! average). Totals R, T, lost, absorbed, fractions of the incident power.
 //!
-//! Determinism: photons are processed in fixed batches of [`BATCH`]; batch b of incidence i
-//! draws from `Rng::new(seed, i, b)`; each batch fills its own f64 accumulator and batches are
+//! Determinism: photon j of incidence i draws from its own stream `Rng::new(seed, i, j)`, so a
+//! photon's random numbers do not depend on how many the photons before it consumed (common
+//! random numbers when a fit changes the face); photons are processed in fixed batches of
+//! [`BATCH`]; each batch fills its own f64 accumulator and batches are
 //! merged in index order, so the result is identical for any number of threads (tested). The
 //! photon loop allocates nothing; a fitting workflow can call [`Gonio::run_plate`] many times
 //! with the same seed (common random numbers) and a different rough face.
@@ -366,7 +368,6 @@ impl Gonio {
                 .map(|b| {
                     let mut acc = Acc::new(ndet);
                     let count = BATCH.min(n - b * BATCH);
-                    let mut rng = Rng::new(self.setup.seed, stream, b);
                     let a = self.setup.beam.azimuth;
                     let bf = BeamFrame {
                         sa: a.sin() as f32,
@@ -375,7 +376,10 @@ impl Gonio {
                         ct: inc.cos() as f32,
                         cos_div: self.setup.beam.divergence.cos() as f32,
                     };
-                    for _ in 0..count {
+                    for k in 0..count {
+                        // one stream per photon: a photon keeps its random numbers whatever
+                        // the other photons consumed (common random numbers for fitting)
+                        let mut rng = Rng::new(self.setup.seed, stream, b * BATCH + k);
                         self.trace_photon(plate, front, back, &bf, &mut rng, &mut acc);
                     }
                     tick();
