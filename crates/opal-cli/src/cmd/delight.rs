@@ -55,6 +55,14 @@ pub struct DelightArgs {
     /// Samples per pixel of the re-renders (0 = no re-render).
     #[arg(long, default_value_t = 64)]
     pub rerender_spp: u32,
+    /// Luminance maps: `superres` (all views inverted jointly with a total-variation prior,
+    /// sharper than the pixels) or `backproject` (each texel samples each view).
+    #[arg(long, default_value = "superres")]
+    pub luminance: String,
+    /// Total-variation weight of `--luminance superres` (units of the mean radiance; default
+    /// 0.0067, chosen by simulating the reference views' noise: bench/scripts/psnr_bound.py).
+    #[arg(long)]
+    pub tv_lambda: Option<f32>,
     /// Seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -184,6 +192,20 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     if a.light_paths == 0 {
         bail!("--light-paths must be at least 1");
     }
+    let superres = match a.luminance.as_str() {
+        "superres" => {
+            let mut sr = opal_inverse::delight::superres::SrSettings::default();
+            if let Some(l) = a.tv_lambda {
+                if !(l.is_finite() && l >= 0.0) {
+                    bail!("--tv-lambda must be a finite number ≥ 0, got {l}");
+                }
+                sr.lambda = l;
+            }
+            Some(sr)
+        }
+        "backproject" => None,
+        other => bail!("--luminance must be superres or backproject, got '{other}'"),
+    };
     let settings = DelightSettings {
         objects: a.objects.clone(),
         iterations: a.iterations,
@@ -193,6 +215,7 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         seed: a.seed,
         keep_uvs: !a.unwrap_all,
         update,
+        superres,
         ..Default::default()
     };
     let r = delight(&desc, &views, &settings, log)?;
@@ -356,7 +379,7 @@ fn write_outputs(
     timings.insert("outputs_and_rerenders".into(), json!(t0.elapsed().as_secs_f64()));
     let report = json!({
         "scene": a.scene, "views": a.views, "n_views": views.len(),
-        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp},
+        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance},
         "converged": r.converged,
         "iterations": its,
         "objects": objs,
@@ -490,6 +513,8 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         unwrap_all: false,
         update: "fixed".into(),
         rerender_spp: 16,
+        luminance: "superres".into(),
+        tv_lambda: None,
         seed: 0,
         threads: None,
         json: false,

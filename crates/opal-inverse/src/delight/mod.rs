@@ -34,6 +34,7 @@
 
 pub mod atlas;
 pub mod inpaint;
+pub mod superres;
 pub mod views;
 
 use atlas::{Atlas, NO_TRI};
@@ -74,7 +75,8 @@ pub struct DelightSettings {
     pub tolerance: f64,
     /// Light paths per light-tracing pass.
     pub light_paths: u64,
-    /// Texture resolution (square); `None` = adaptive (256–4096).
+    /// Texture resolution (square); `None` = the size of the object's existing square bitmap
+    /// texture when its UVs are kept, else adaptive (256–4096).
     pub resolution: Option<usize>,
     /// Seed.
     pub seed: u64,
@@ -88,6 +90,8 @@ pub struct DelightSettings {
     pub update: UpdateRule,
     /// Smoothing radius (texels) of the rendered indirect irradiance; `None` = resolution/64.
     pub smooth: Option<usize>,
+    /// Multi-view super-resolved luminance maps ([`superres`]); `None` = back-projection only.
+    pub superres: Option<superres::SrSettings>,
 }
 
 impl Default for DelightSettings {
@@ -104,6 +108,7 @@ impl Default for DelightSettings {
             indirect_share: 0.5,
             update: UpdateRule::FixedPoint,
             smooth: None,
+            superres: Some(superres::SrSettings::default()),
         }
     }
 }
@@ -257,7 +262,7 @@ fn bbox(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
 }
 
 /// Luminance map of one object (step 2): values, observed mask.
-fn luminance_map(
+pub(crate) fn luminance_map(
     scene: &Scene,
     shape: u32,
     a: &Atlas,
@@ -332,6 +337,15 @@ fn luminance_map(
         })
         .collect();
     res.into_iter().unzip()
+}
+
+/// Size of the bitmap reflectance of a diffuse (or two-sided diffuse) BSDF, if any.
+fn existing_texture_size(b: &BsdfDesc) -> Option<(usize, usize)> {
+    match b {
+        BsdfDesc::Diffuse { reflectance: TextureDesc::Bitmap(bm) } => Some((bm.image.width, bm.image.height)),
+        BsdfDesc::TwoSided(inner) => existing_texture_size(inner),
+        _ => None,
+    }
 }
 
 /// Direct irradiance per texel (step 4).
@@ -522,8 +536,18 @@ pub fn delight(
     let mut skipped = Vec::new();
     for &k in &selected {
         let sh = &desc.shapes[k];
-        let res = s.resolution.unwrap_or_else(|| atlas::auto_resolution(&sh.mesh, &cams));
-        match atlas::build_atlas(&sh.mesh, res, s.keep_uvs) {
+        // an object that keeps its UVs and already has a square bitmap texture gets a texture
+        // of the same size (the recovered map replaces it texel for texel); otherwise adaptive
+        let tex_res = existing_texture_size(&sh.bsdf).filter(|&(w, h)| w == h && s.keep_uvs).map(|(w, _)| w);
+        let auto = || atlas::auto_resolution(&sh.mesh, &cams);
+        let res = s.resolution.or(tex_res).unwrap_or_else(auto);
+        let built = match atlas::build_atlas(&sh.mesh, res, s.keep_uvs) {
+            Ok(a) if !a.kept_uvs && s.resolution.is_none() && tex_res.is_some() => {
+                atlas::build_atlas(&sh.mesh, auto(), s.keep_uvs)
+            }
+            other => other,
+        };
+        match built {
             Ok(a) => {
                 let n = a.width * a.height;
                 log(&format!(
@@ -570,7 +594,14 @@ pub fn delight(
         .map(|s| bbox(s.mesh.positions.iter().copied()))
         .collect();
     for o in &mut objects {
-        let (l, obs) = luminance_map(&scene, o.shape as u32, &o.atlas, views, &pure);
+        let (mut l, mut obs) = luminance_map(&scene, o.shape as u32, &o.atlas, views, &pure);
+        if let Some(sr) = &s.superres
+            && let Some((ls, os)) =
+                superres::superres_luminance(&scene, o.shape as u32, &o.atlas, views, &pure, (&l, &obs), sr)
+        {
+            l = ls;
+            obs = os;
+        }
         o.l = l;
         o.observed = obs;
         let covered = o.atlas.covered().max(1);
