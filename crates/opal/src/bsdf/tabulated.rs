@@ -22,21 +22,26 @@
 //! `f(wo, wi) |cos θi| |dωi/dωm| · 2π dw/du` (importance mode: power).
 //!
 //! # Evaluation and sampling
-//! `Q` is piecewise constant in (u, v) and linear in θo between rows. `eval` converts the cell
-//! value back to a BSDF value with the exact Jacobians (`dω_m = 2π (dw/du) du dv` for the pair
-//! of mirrored cells; `dωm/dωi = 1/(4|wo·wm|)` for reflection and
-//! `|wi·wm| / (wi·wm + wo·wm/η')²` for transmission), divided by `|cos θi|`; the radiance BTDF
-//! is the importance one divided by η'² ([`TransportMode`]). `sample` picks one of the two
-//! bracketing rows with the interpolation weight (using `uc`), a cell from the row's marginal
-//! (over lobe × u) and conditional (over v) CDFs, the mirror half with the rest of `uc`, and a
-//! uniform point in the cell; the returned pdf is the same θo-interpolation of the two rows'
-//! normalised densities, so `sample`, `pdf` and `eval` are exactly consistent. A sample whose
-//! point maps to no valid direction (beyond a total-internal-reflection edge or below the
-//! horizon inside a cell straddling it) fails (`None`).
+//! `eval` divides each cell value by the cell average of the *known* factor of the integrand,
+//! `Fresnel(wo·wm)·|wo·wm|·2π dw/du` at the row's incidence (the rest, `D·G/|cos θo|`, is smooth
+//! in θo and wm), interpolates that smooth part bilinearly over the cell centres in (u, v) and
+//! linearly between the two bracketing θo rows, and multiplies by the exact known factor of the
+//! actual `wo` — so the steep Fresnel change near the critical angle (light from inside) and the
+//! facet-projection cut-off at grazing incidence are not interpolated. It then converts to a
+//! BSDF value with the exact Jacobians (`dωm/dωi = 1/(4|wo·wm|)` for reflection,
+//! `|wi·wm| / (wi·wm + wo·wm/η')²` for transmission) divided by `|cos θi|`; the radiance BTDF
+//! is the importance one divided by η'² ([`TransportMode`]).
+//! `sample` picks one of the two bracketing rows with the interpolation weight (using `uc`), a
+//! cell from the row's marginal (over lobe × u) and conditional (over v) CDFs, the mirror half
+//! with the rest of `uc`, and a uniform point in the cell; `pdf` is the same θo-interpolation of
+//! the two rows' piecewise-constant normalised densities, so `sample` and `pdf` agree exactly
+//! (`eval` is smoother than `pdf`, which only has to be proportional to it approximately). A
+//! sample whose point maps to no valid direction (beyond a total-internal-reflection edge or
+//! below the horizon inside a cell straddling it) fails (`None`).
 //!
-//! Accuracy (measured, `docs/formats.md`): the error of `eval` relative to the lobe energy
-//! comes from the piecewise-constant cells and the θo interpolation; reciprocity holds up to
-//! that discretisation error only (it is not enforced).
+//! Accuracy (measured, `docs/formats.md`): the L1 error of the scattered power relative to the
+//! lobe energy is 0.1–0.7 % below 80° incidence and ≤ 2.1 % at 88° (default grid, α = 0.1 and
+//! 0.4, both sides); reciprocity holds up to that discretisation error (not enforced).
 //!
 //! Tests (below): χ² of `sample` vs `pdf` from both sides; eval vs the source BSDF (L1 error
 //! relative to the lobe energy, off-grid incidences); albedo per incidence vs the source; the
@@ -129,7 +134,7 @@ struct Table {
     q: Vec<f32>,
     /// 1 / (cell average of the known factor of the row's incidence × 2π dw/du), 0 where the
     /// factor is < 1e-4.
-    inv_fresnel: Vec<f32>,
+    inv_known: Vec<f32>,
     rows: Vec<Option<RowDist>>,
     source: String,
 }
@@ -359,7 +364,7 @@ impl TabulatedBsdf {
             });
             rows.push(rd);
         }
-        let inv_fresnel: Vec<f32> = (0..q.len())
+        let inv_known: Vec<f32> = (0..q.len())
             .into_par_iter()
             .map(|k| {
                 let (sr, c) = (k / cpr, k % cpr);
@@ -381,7 +386,7 @@ impl TabulatedBsdf {
                 if acc / 16.0 > 1e-4 * grid.jac(u) { 16.0 / acc } else { 0.0 }
             })
             .collect();
-        Ok(TabulatedBsdf { t: Arc::new(Table { eta, grid, q, inv_fresnel, rows, source }) })
+        Ok(TabulatedBsdf { t: Arc::new(Table { eta, grid, q, inv_known, rows, source }) })
     }
 
     /// Relative index n_inside / n_outside.
@@ -529,11 +534,13 @@ impl TabulatedBsdf {
 
     /// (f·|cos θi| in power units, pdf, η', |cos θi|, transmission) of the pair.
     ///
-    /// The value interpolates between the two bracketing rows the table value divided by the
-    /// Fresnel factor of the row's incidence at the cell centre, then multiplies by the exact
-    /// Fresnel factor of `wo`: the factor changes steeply with θo near the critical angle
-    /// (light from the inside), the rest of the integrand smoothly. The pdf is the plain
-    /// interpolation of the rows' normalised densities (what `sample` draws from).
+    /// The value interpolates the table value divided by the cell average of the known factor
+    /// (Fresnel × |wo·wm| × 2π dw/du at the row's incidence) — bilinearly over the cell centres
+    /// in (u, v) and linearly between the two bracketing rows, over the stencil entries whose
+    /// factor is not ~0 — then multiplies by the exact factor of `wo`: Fresnel changes steeply
+    /// with θo near the critical angle (light from the inside), the rest of the integrand
+    /// smoothly. The pdf is the plain piecewise-constant interpolation of the rows' normalised
+    /// densities (what `sample` draws from).
     #[inline]
     fn lookup(&self, wo: Vec3, wi: Vec3) -> Option<(f32, f32, f32, f32, bool)> {
         let t = &*self.t;
@@ -546,6 +553,19 @@ impl TabulatedBsdf {
         let idx = (transmit as usize * g.n_u + iu) * g.n_v + iv;
         let cpr = g.cells_per_row();
         let (mut q, mut p) = (0.0f32, 0.0f32);
+        // bilinear stencil over cell centres in (u, v), clamped at the edges (v = 0 and 1 are
+        // mirror axes, so clamping is the symmetric extension)
+        let stencil = |x: f32, n: usize| {
+            let f = x * n as f32 - 0.5;
+            if f <= 0.0 {
+                return (0, 0, 0.0);
+            }
+            let i = (f.floor() as usize).min(n - 1);
+            if i + 1 >= n { (n - 1, n - 1, 0.0) } else { (i, i + 1, f - i as f32) }
+        };
+        let (u0, u1, tu) = stencil(u, g.n_u);
+        let (v0, v1, tv) = stencil(v, g.n_v);
+        let lobe0 = transmit as usize * g.n_u;
         let (mut qf, mut wf) = (0.0f32, 0.0f32);
         for (r, w) in [(i0, 1.0 - w1), (i1, w1)] {
             if w == 0.0 {
@@ -555,12 +575,18 @@ impl TabulatedBsdf {
             let k = sr * cpr + idx;
             let qv = t.q[k];
             q += w * qv;
-            if t.inv_fresnel[k] > 0.0 {
-                qf += w * qv * t.inv_fresnel[k];
-                wf += w;
-            }
             if let Some(d) = &t.rows[sr] {
                 p += w * qv / d.albedo;
+            }
+            for (ju, wu) in [(u0, 1.0 - tu), (u1, tu)] {
+                for (jv, wv) in [(v0, 1.0 - tv), (v1, tv)] {
+                    let wc = w * wu * wv;
+                    let kc = sr * cpr + (lobe0 + ju) * g.n_v + jv;
+                    if wc > 0.0 && t.inv_known[kc] > 0.0 {
+                        qf += wc * t.q[kc] * t.inv_known[kc];
+                        wf += wc;
+                    }
+                }
             }
         }
         if wf > 0.0 {
@@ -709,7 +735,8 @@ mod tests {
                     let (err, tot) = l1_error(&tab, &src, wo);
                     let rel = err / tot;
                     eprintln!("α={alpha} θ={theta_deg} side {side}: energy {tot:.4}, L1 error {rel:.4}");
-                    assert!(rel < 0.05, "α={alpha} θ={theta_deg} side {side}: L1 error {rel}");
+                    // measured ≤ 2.1 % (at 88°), ≤ 0.7 % below 80°
+                    assert!(rel < 0.03, "α={alpha} θ={theta_deg} side {side}: L1 error {rel}");
                     // the table's albedo vs the source's (fine quadrature in wm space)
                     let a = tab.albedo(wo) as f64;
                     assert!((a - tot).abs() < 0.01 * tot.max(0.05), "albedo {a} vs {tot}");
@@ -760,7 +787,8 @@ mod tests {
     /// Generalised reciprocity f(wo, wi)/n_o² = f(wi, wo)/n_i² holds for the source exactly and
     /// for the table up to its discretisation: the L1 difference of the two sides, weighted by
     /// the scattered power (wi drawn from the table), is bounded by the sum of the two eval
-    /// errors (≤ 5 % each, see `eval_and_albedo_match_source_both_sides`).
+    /// errors (≤ 3 % each, see `eval_and_albedo_match_source_both_sides`, up to 10 % for both
+    /// directions and the grazing pairs).
     #[test]
     fn reciprocity_up_to_discretisation() {
         let src = RoughDielectric::new(Ndfs::ggx(0.2), 1.5, Shadowing::Separable).unwrap();
@@ -768,7 +796,7 @@ mod tests {
         let n = |w: Vec3| if w.z > 0.0 { 1.0 } else { 1.5f32 };
         let mut rng = crate::sampling::Rng::new(17, 0, 0);
         let (mut diff, mut tot) = (0.0f64, 0.0f64);
-        let mut dbg_ = [[0.0f64; 4]; 3];
+        let mut bins = [[0.0f64; 4]; 3];
         for _ in 0..200_000 {
             let wo = crate::sampling::square_to_uniform_sphere(rng.next_2d());
             let Some(s) = tab.sample(wo, rng.next_f32(), rng.next_2d(), TransportMode::Radiance) else {
@@ -791,12 +819,12 @@ mod tests {
             } else {
                 2
             };
-            dbg_[bin][0] += (a - b).abs() as f64 * w;
-            dbg_[bin][1] += (a - c).abs() as f64 * w;
-            dbg_[bin][2] += (b - d).abs() as f64 * w;
-            dbg_[bin][3] += a as f64 * w;
+            bins[bin][0] += (a - b).abs() as f64 * w;
+            bins[bin][1] += (a - c).abs() as f64 * w;
+            bins[bin][2] += (b - d).abs() as f64 * w;
+            bins[bin][3] += a as f64 * w;
         }
-        for b in dbg_ {
+        for b in bins {
             eprintln!(
                 "recip {:.4} fwd {:.4} back {:.4} energy {:.1}",
                 b[0] / b[3],
