@@ -854,4 +854,10 @@ fn dielectric_and_tabulated_bsdfs() {
     assert!(m.contains("face.obsdf") && m.contains("magic"), "{m}");
     let (_, m) = err_body(r#"<shape type="rectangle"><bsdf type="tabulated"/></shape>"#);
     assert!(m.contains("filename") && m.contains("required"), "{m}");
+    // an interface has two sides already: twosided around it is refused when building
+    let d = ok(
+        r#"<shape type="sphere" id="ball"><bsdf type="twosided"><bsdf type="dielectric"/></bsdf></shape>"#,
+    );
+    let m = opal::scene::Scene::build(&d).unwrap_err().to_string();
+    assert!(m.contains("ball") && m.contains("twosided"), "{m}");
 }
