@@ -2,7 +2,8 @@
 //!
 //! * [`face_table`]: the tabulated BSDF ([`opal::bsdf::TabulatedBsdf`], `.obsdf` file) of a
 //!   rough face with NDF `ndf` on a plate of index `ior` (single scattering, separable Smith G:
-//!   the model of [`crate::export::face_bsdf`]), both sides, R and T.
+//!   the model of [`crate::export::face_bsdf`]), both sides, R and T; [`face_table_for`]: the
+//!   same for the scattering model of the fit (single, height-correlated, multiple).
 //! * [`chessboard_scene`]: a plate (rough top face from the table, polished bottom and edges:
 //!   [`opal::bsdf::SmoothDielectric`]) held a little above an 8 × 8 chessboard, under a large
 //!   overhead area light with emitting side walls (diffuse light), seen obliquely by one camera.
@@ -14,11 +15,14 @@
 //! Tests: `tests` below (the table of a fitted NDF matches its albedo; the scene renders with
 //! finite values and the plate blurs the board: lower contrast under the rough plate).
 
-use crate::export::face_bsdf;
+use opal::bsdf::RoughDielectric;
 use opal::bsdf::microfacet::Ndfs;
+use opal::bsdf::rough_dielectric::Shadowing;
+use opal::bsdf::rough_dielectric_ms::RoughDielectricMs;
 use opal::bsdf::tabulated::TableGrid;
 use opal::bsdf::{Bxdfs, SmoothDielectric, TabulatedBsdf};
 use opal::geometry::TriangleMesh;
+use opal::gonio::Scattering;
 use opal::image::Image;
 use opal::integrator::path::{PathSettings, RenderOutput, render};
 use opal::math::{DVec3, Mat4, Vec3};
@@ -27,12 +31,55 @@ use opal::scene::desc::*;
 use opal::spectrum::Spectrum;
 use std::sync::Arc;
 
-/// Tabulated BSDF of the rough face (grid `grid`, 2 × 2 sub-samples per cell).
+/// Tabulated BSDF of the rough face (grid `grid`, 2 × 2 sub-samples per cell), single
+/// scattering with the separable Smith G.
 pub fn face_table(ndf: &Ndfs, ior: f64, grid: TableGrid, label: &str) -> opal::Result<TabulatedBsdf> {
-    let src = face_bsdf(ndf.clone(), ior)?;
-    let source =
-        format!("rough face {label}, n = {ior}, single scattering, separable Smith G (opal fit-ndf)");
-    TabulatedBsdf::build(&src, ior as f32, grid, 2, &source)
+    Ok(face_table_for(ndf, ior, grid, Scattering::Single, label)?.0)
+}
+
+/// Photons per table row when tabulating the multiple-scattering model.
+pub const MS_PHOTONS_PER_ROW: usize = 50_000;
+
+/// Tabulated BSDF of the rough face for the scattering model the fit used: single scattering
+/// (separable or height-correlated Smith G) integrated from `eval`, or multiple scattering
+/// histogrammed from [`MS_PHOTONS_PER_ROW`] random walks per row (seeded). Returns the table and
+/// the fraction of scattered power the table could not represent (0 for single scattering;
+/// see [`TabulatedBsdf::build_from_sampler`]).
+pub fn face_table_for(
+    ndf: &Ndfs,
+    ior: f64,
+    grid: TableGrid,
+    scattering: Scattering,
+    label: &str,
+) -> opal::Result<(TabulatedBsdf, f64)> {
+    let eta = ior as f32;
+    match scattering {
+        Scattering::Single | Scattering::SingleHeightCorrelated => {
+            let (sh, name) = if scattering == Scattering::Single {
+                (Shadowing::Separable, "separable")
+            } else {
+                (Shadowing::HeightCorrelated, "height-correlated")
+            };
+            let src = RoughDielectric::new(ndf.clone(), eta, sh)?;
+            let source =
+                format!("rough face {label}, n = {ior}, single scattering, {name} Smith G (opal fit-ndf)");
+            Ok((TabulatedBsdf::build(&src, eta, grid, 2, &source)?, 0.0))
+        }
+        Scattering::Multiple => {
+            let ms = RoughDielectricMs::new(ndf.clone(), eta)?;
+            let source = format!(
+                "rough face {label}, n = {ior}, multiple scattering (random walk, {MS_PHOTONS_PER_ROW} photons per row; opal fit-ndf)"
+            );
+            TabulatedBsdf::build_from_sampler(
+                |wo, rng| ms.sample_dir(wo, rng).map(|w| (w, 1.0)),
+                eta,
+                grid,
+                MS_PHOTONS_PER_ROW,
+                0x0FACE,
+                &source,
+            )
+        }
+    }
 }
 
 fn cube_faces(faces: &[usize], scale: Vec3, offset: Vec3) -> TriangleMesh {
@@ -254,6 +301,23 @@ mod tests {
         }
         eprintln!("blocks within 3σ: {ok}/{tot}");
         assert!(ok * 100 >= 95 * tot, "{ok}/{tot} blocks within 3σ");
+    }
+
+    /// The multiple-scattering face keeps the energy the single-scattering one loses.
+    #[test]
+    fn multiple_scattering_table_keeps_energy() {
+        let grid = TableGrid { n_theta_o: 9, n_u: 48, n_v: 24, beta: 12.0 };
+        let ndf = Ndfs::ggx(0.4);
+        let (ss, l0) = face_table_for(&ndf, 1.5, grid, Scattering::Single, "ss").unwrap();
+        let (ms, l1) = face_table_for(&ndf, 1.5, grid, Scattering::Multiple, "ms").unwrap();
+        assert_eq!(l0, 0.0);
+        eprintln!("dropped (multiple scattering, α = 0.4): {l1:.4}");
+        for th in [0.1f32, 0.8, 1.3] {
+            let wo = Vec3::new(th.sin(), 0.0, th.cos());
+            let (a, b) = (ss.albedo(wo), ms.albedo(wo));
+            eprintln!("θ={th}: albedo single {a:.4}, multiple {b:.4}");
+            assert!(b > a && b <= 1.0 + 1e-4, "θ={th}: single {a}, multiple {b}");
+        }
     }
 
     #[test]

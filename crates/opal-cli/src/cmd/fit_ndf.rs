@@ -236,6 +236,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     let face = super::face_render::write_face_outputs(
         out,
         s.plate.ior,
+        s.scattering,
         (
             &best.family.ndf(best.alpha_initial),
             &format!("{} α={:.4}", best.family.name(), best.alpha_initial),
