@@ -811,24 +811,31 @@ mod tests {
     fn chi2_sample_vs_pdf_and_weights() {
         let src = RoughDielectric::new(Ndfs::beckmann(0.5), 1.5, Shadowing::Separable).unwrap();
         let tab = TabulatedBsdf::build(&src, 1.5, small_grid(), 2, "test").unwrap();
-        let mut k = 0;
-        for theta in [0.3f32, 1.1] {
-            for side in [1.0f32, -1.0] {
-                let mut wo = spherical_direction(theta, 2.0);
-                wo.z *= side;
-                let mode = if k % 2 == 0 { TransportMode::Radiance } else { TransportMode::Importance };
-                let mut t = Chi2Test::new(&format!("tab_{theta}_{side}"), 150_000, 16);
-                t.num_tests = 4;
-                t.seed = 40 + k;
-                t.quad_subdiv = 4;
-                k += 1;
-                let r = t.run3(&SphereFn3 {
-                    sample: &|u, uc| tab.sample(wo, uc, u, mode).map(|s| s.wi),
-                    pdf: &|wi| tab.pdf(wo, wi, mode) as f64,
-                });
-                eprintln!("χ² θ={theta} side {side}: p = {:.3}", r.p_value);
-                assert!(r.passed, "θ={theta} side {side}: {r:?}");
-            }
+        // a narrow lobe too (GGX α = 0.15), at an incidence between rows
+        let narrow_src = RoughDielectric::new(Ndfs::ggx(0.15), 1.5, Shadowing::Separable).unwrap();
+        let narrow = TabulatedBsdf::build(&narrow_src, 1.5, small_grid(), 2, "test").unwrap();
+        let cases = [
+            (&tab, 0.3f32, 1.0f32),
+            (&tab, 0.3, -1.0),
+            (&tab, 1.1, 1.0),
+            (&tab, 1.1, -1.0),
+            (&narrow, 0.7, 1.0),
+            (&narrow, 0.7, -1.0),
+        ];
+        for (k, (t_, theta, side)) in cases.into_iter().enumerate() {
+            let mut wo = spherical_direction(theta, 2.0);
+            wo.z *= side;
+            let mode = if k % 2 == 0 { TransportMode::Radiance } else { TransportMode::Importance };
+            let mut t = Chi2Test::new(&format!("tab_{k}_{theta}_{side}"), 150_000, 16);
+            t.num_tests = cases.len() as u32;
+            t.seed = 40 + k as u64;
+            t.quad_subdiv = 4;
+            let r = t.run3(&SphereFn3 {
+                sample: &|u, uc| t_.sample(wo, uc, u, mode).map(|s| s.wi),
+                pdf: &|wi| t_.pdf(wo, wi, mode) as f64,
+            });
+            eprintln!("χ² case {k} θ={theta} side {side}: p = {:.3}", r.p_value);
+            assert!(r.passed, "case {k} θ={theta} side {side}: {r:?}");
         }
         // sample weight = eval·cos/pdf and radiance = importance / η'² for transmission
         let mut rng = crate::sampling::Rng::new(9, 0, 0);
