@@ -212,6 +212,57 @@ pub fn save_panels(path: &Path, panels: &[LinePlot], size: (u32, u32)) -> Result
     }
 }
 
+/// One labelled picture of [`save_image_row`]: 8-bit sRGB RGB pixels, row-major.
+pub struct LabelledImage {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// `width × height × 3` bytes.
+    pub rgb: Vec<u8>,
+    /// Caption drawn in a band above the picture.
+    pub label: String,
+}
+
+/// Saves pictures side by side into one PNG, each with its caption above it.
+pub fn save_image_row(path: &Path, images: &[LabelledImage]) -> Result<()> {
+    register_font();
+    if images.is_empty() {
+        bail!("no image to save");
+    }
+    let band = 24u32;
+    let gap = 4u32;
+    let w: u32 = images.iter().map(|i| i.width).sum::<u32>() + gap * (images.len() as u32 - 1);
+    let h = band + images.iter().map(|i| i.height).max().unwrap_or(0);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    let mut x0 = 0u32;
+    for im in images {
+        if im.rgb.len() != (im.width * im.height * 3) as usize {
+            bail!("image '{}': buffer size mismatch", im.label);
+        }
+        for y in 0..im.height {
+            let src = &im.rgb[(y * im.width * 3) as usize..((y + 1) * im.width * 3) as usize];
+            let d0 = (((y + band) * w + x0) * 3) as usize;
+            buf[d0..d0 + src.len()].copy_from_slice(src);
+        }
+        x0 += im.width + gap;
+    }
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let mut x0 = 0i32;
+        for im in images {
+            let style = ("sans-serif", 15).into_font().color(&BLACK);
+            root.draw(&Text::new(im.label.clone(), (x0 + 6, 4), style)).map_err(|e| anyhow!("label: {e}"))?;
+            x0 += (im.width + gap) as i32;
+        }
+        root.present().map_err(|e| anyhow!("image row: {e}"))?;
+    }
+    let img = image::RgbImage::from_raw(w, h, buf).context("image row buffer size")?;
+    let mut bytes = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)?;
+    crate::util::write_bytes_atomic(path, &bytes)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -79,9 +79,66 @@ fn small_fit_writes_outputs() {
         "air_to_material_btdf.BSDF",
         "material_to_air_brdf.BSDF",
         "material_to_air_btdf.BSDF",
+        "face.obsdf",
+        "chessboard.png",
     ] {
         assert!(out.join(f).exists(), "missing {f}");
     }
+    assert!(j["face"]["face_obsdf_bytes"].as_u64().unwrap() > 1000);
+    let png = image::open(out.join("chessboard.png")).unwrap();
+    assert!(png.width() > 400 && png.height() > 150, "{}x{}", png.width(), png.height());
+    // face.obsdf loads as a material in a scene rendered by `opal render`: a plate whose top is
+    // the fitted face, over a white floor, under an area light
+    let scene = format!(
+        r#"<scene version="3.0.0">
+  <shape type="rectangle"><bsdf type="diffuse"><rgb name="reflectance" value="0.8"/></bsdf></shape>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="0.5"/><translate z="0.3"/></transform>
+    <bsdf type="tabulated"><string name="filename" value="{}"/></bsdf>
+  </shape>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="0.5"/><translate z="0.2"/></transform>
+    <boolean name="flip_normals" value="true"/>
+    <bsdf type="dielectric"><float name="int_ior" value="1.49"/><float name="ext_ior" value="1"/></bsdf>
+  </shape>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="3"/><translate z="3"/></transform>
+    <boolean name="flip_normals" value="true"/>
+    <emitter type="area"><rgb name="radiance" value="1"/></emitter>
+  </shape>
+  <sensor type="perspective">
+    <float name="fov" value="50"/>
+    <transform name="to_world"><lookat origin="0, -2, 2" target="0, 0, 0" up="0, 0, 1"/></transform>
+    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/></film>
+  </sensor>
+</scene>"#,
+        out.join("face.obsdf").display()
+    );
+    std::fs::write(d.path().join("scene.xml"), scene).unwrap();
+    let o = opal()
+        .arg("render")
+        .arg(d.path().join("scene.xml"))
+        .arg("-o")
+        .arg(d.path().join("plate.exr"))
+        .args(["--spp", "8", "--json"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(r["nonfinite_samples"], 0);
+    assert!(r["mean_rgb"][0].as_f64().unwrap() > 0.0);
+    // a damaged face.obsdf: the error names the file and what is wrong
+    std::fs::write(out.join("face.obsdf"), b"OPALBSDF\xff\xff\xff\x7f").unwrap();
+    let o = opal()
+        .arg("render")
+        .arg(d.path().join("scene.xml"))
+        .arg("-o")
+        .arg(d.path().join("p2.exr"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("face.obsdf") && err.contains("header length"), "{err}");
     // the exported plate reproduces with `opal gonio simulate`
     let o = opal()
         .args(["gonio", "simulate"])
@@ -111,6 +168,7 @@ fn non_converged_fit_exits_1_with_outputs() {
             "--max-iters",
             "2",
             "--quiet",
+            "--no-render",
             "-o",
         ])
         .arg(&out)
@@ -122,4 +180,6 @@ fn non_converged_fit_exits_1_with_outputs() {
     let j: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("fit.json")).unwrap()).unwrap();
     assert_eq!(j["converged"], false);
     assert!(out.join("curves.png").exists());
+    // --no-render: the table is written, the chessboard is not
+    assert!(out.join("face.obsdf").exists() && !out.join("chessboard.png").exists());
 }

@@ -9,5 +9,6 @@
 pub mod brdf_energy;
 pub mod delight;
 pub mod export;
+pub mod face_table;
 pub mod measured;
 pub mod ndf_fit;

@@ -138,3 +138,48 @@ fn same_image_for_any_thread_count() {
         .install(|| render(&scene, 0, &s, &|| {}));
     assert_eq!(one.image, two.image);
 }
+
+/// A lossless glass object in the closed furnace (a faceted sphere of smooth dielectric,
+/// η = 1.5, outward normals, and a glass cube seen through it) changes nothing: every pixel sees
+/// the furnace radiance Le/(1−ρ). Checks delta reflection/refraction, the 1/η² radiance
+/// scaling and its undoing on exit, total internal reflection inside, and Russian roulette
+/// with the η² correction.
+#[test]
+fn furnace_with_glass_sphere() {
+    let mut sphere = opal::scene::load::sphere_mesh(24, 12);
+    sphere.normals.clear(); // faceted: shading normal = geometric normal
+    for p in &mut sphere.positions {
+        *p = *p * 0.5 + Vec3::new(0.0, 0.0, 0.3);
+    }
+    // a small glass cube behind the sphere (outward normals: reverse the inward cube)
+    let mut cube = inward_cube();
+    for t in &mut cube.indices {
+        t.swap(1, 2);
+    }
+    for p in &mut cube.positions {
+        *p = *p * 0.2 + Vec3::new(0.3, 0.1, 0.75);
+    }
+    let glass =
+        BsdfDesc::Lobe(opal::bsdf::Bxdfs::SmoothDielectric(opal::bsdf::SmoothDielectric::new(1.5).unwrap()));
+    let mut desc = furnace_scene(0.5, 1.0);
+    for (id, mesh) in [("glass_sphere", sphere), ("glass_cube", cube)] {
+        desc.shapes.push(ShapeDesc { id: id.into(), mesh, bsdf: glass.clone(), emitter: None, origin: None });
+    }
+    // camera on −z looking at the sphere (+z)
+    desc.sensors[0].to_world = Mat4::from_translation(Vec3::new(0.0, 0.0, -0.9));
+    desc.sensors[0].fov_x_deg = 60.0;
+    let scene = Scene::build(&desc).unwrap();
+    let s = PathSettings { spp: 256, max_depth: -1, rr_depth: 3, hide_emitters: false, seed: 21 };
+    let out = render(&scene, 0, &s, &|| {});
+    assert_eq!(out.nonfinite, 0);
+    let expected = 1.0 / (1.0 - 0.5);
+    let (m, se) = mean_and_se(&out, 0);
+    assert!((m - expected).abs() <= 4.0 * se, "{m} ± {se}, expected {expected}");
+    // per pixel too (a few pixels may deviate at 4σ by chance: allow 1 %)
+    let bad = (0..out.image.data.len())
+        .filter(|&k| {
+            (out.image.data[k][0] as f64 - expected).abs() > 4.0 * out.stderr.data[k][0] as f64 + 1e-3
+        })
+        .count();
+    assert!(bad * 100 <= out.image.data.len(), "{bad} pixels off");
+}

@@ -802,3 +802,62 @@ fn mitsuba_style_cornell_box() {
     let e = r.unwrap_err().to_string();
     assert!(e.contains("scene.xml:13:") && e.contains("rfilter type=\"tent\" is not supported"), "{e}");
 }
+
+/// `dielectric` (ratio of the indices, Mitsuba's defaults) and `tabulated` (an `.obsdf` file
+/// next to the scene); errors name the file, the parameter and the value.
+#[test]
+fn dielectric_and_tabulated_bsdfs() {
+    use opal::bsdf::Bxdfs;
+    let d = ok(r#"<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="1.6"/>
+        <float name="ext_ior" value="1.2"/></bsdf></shape>
+        <shape type="sphere"><bsdf type="dielectric"/></shape>"#);
+    match (&d.shapes[0].bsdf, &d.shapes[1].bsdf) {
+        (BsdfDesc::Lobe(Bxdfs::SmoothDielectric(a)), BsdfDesc::Lobe(Bxdfs::SmoothDielectric(b))) => {
+            assert!((a.eta - 1.6 / 1.2).abs() < 1e-6);
+            assert!((b.eta - 1.5046 / 1.000277).abs() < 1e-6);
+        }
+        other => panic!("{other:?}"),
+    }
+    let (_, m) = err_body(
+        r#"<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="-1"/></bsdf></shape>"#,
+    );
+    assert!(m.contains("int_ior") && m.contains("-1") && m.contains("scene.xml"), "{m}");
+    let (_, m) = err_body(
+        r#"<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="1.0"/><float name="ext_ior" value="1.0"/></bsdf></shape>"#,
+    );
+    assert!(m.contains("eta"), "{m}");
+
+    // a tiny table built from a rough dielectric
+    let src = opal::bsdf::RoughDielectric::new(
+        opal::bsdf::microfacet::Ndfs::ggx(0.3),
+        1.5,
+        opal::bsdf::rough_dielectric::Shadowing::Separable,
+    )
+    .unwrap();
+    let grid = opal::bsdf::tabulated::TableGrid { n_theta_o: 3, n_u: 8, n_v: 4, beta: 8.0 };
+    let table = opal::bsdf::TabulatedBsdf::build(&src, 1.5, grid, 1, "test").unwrap().to_bytes();
+    let xml = scene_xml(
+        r#"<shape type="rectangle"><bsdf type="tabulated"><string name="filename" value="tables/face.obsdf"/></bsdf></shape>"#,
+    );
+    let (_d, r) = load_inline(&[("scene.xml", xml.as_bytes()), ("tables/face.obsdf", &table)], &[]);
+    match &r.unwrap().shapes[0].bsdf {
+        BsdfDesc::Lobe(Bxdfs::Tabulated(t)) => {
+            assert_eq!(t.grid(), grid);
+            assert_eq!(t.eta(), 1.5);
+        }
+        other => panic!("{other:?}"),
+    }
+    // missing file, not a table, missing filename
+    let (_, m) = err(&[("scene.xml", xml.as_bytes())]);
+    assert!(m.contains("face.obsdf") && m.contains("scene.xml"), "{m}");
+    let (_, m) = err(&[("scene.xml", xml.as_bytes()), ("tables/face.obsdf", b"not a table at all")]);
+    assert!(m.contains("face.obsdf") && m.contains("magic"), "{m}");
+    let (_, m) = err_body(r#"<shape type="rectangle"><bsdf type="tabulated"/></shape>"#);
+    assert!(m.contains("filename") && m.contains("required"), "{m}");
+    // an interface has two sides already: twosided around it is refused when building
+    let d = ok(
+        r#"<shape type="sphere" id="ball"><bsdf type="twosided"><bsdf type="dielectric"/></bsdf></shape>"#,
+    );
+    let m = opal::scene::Scene::build(&d).unwrap_err().to_string();
+    assert!(m.contains("ball") && m.contains("twosided"), "{m}");
+}

@@ -68,6 +68,10 @@ pub struct FitNdfArgs {
     /// Points below this fraction of their curve's maximum are left out of the objective.
     #[arg(long, default_value_t = 0.01)]
     pub floor: f64,
+    /// Skip the chessboard render (`chessboard.png`, a few CPU-seconds); `face.obsdf` is
+    /// still written.
+    #[arg(long)]
+    pub no_render: bool,
 }
 
 /// Everything a fit produced.
@@ -229,6 +233,17 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         s.detector_radius.to_degrees()
     );
     write_bytes_atomic(&out.join("plate_fitted.toml"), face_toml.as_bytes())?;
+    let face = super::face_render::write_face_outputs(
+        out,
+        s.plate.ior,
+        s.scattering,
+        (
+            &best.family.ndf(best.alpha_initial),
+            &format!("{} α={:.4}", best.family.name(), best.alpha_initial),
+        ),
+        (&ndf, &format!("{} α={:.4}", best.family.name(), best.alpha)),
+        a.no_render,
+    )?;
 
     let per: Vec<_> = ev
         .per_incidence
@@ -256,6 +271,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "seconds": seconds,
         "families": fits.iter().map(fam_json).collect::<Vec<_>>(),
         "measured": a.measured.display().to_string(),
+        "face": face,
     });
     write_bytes_atomic(&out.join("fit.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
     Ok(FitOutcome { json, converged })

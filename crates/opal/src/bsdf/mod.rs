@@ -9,12 +9,15 @@
 //! * [`Bxdfs`]: the runtime set (enum, `match` dispatch, no allocation per hit).
 //!
 //! Models: [`lambert`]; method B lobes [`phong`], [`blinn`], [`schlick`], [`lyon`], [`pow16`],
-//! [`conductor`]
+//! [`conductor`]; dielectric interfaces [`rough_dielectric`] (and [`rough_dielectric_ms`], power
+//! only), [`dielectric`] (smooth, delta lobes), [`tabulated`] (a rough face tabulated from any of
+//! them, loaded from `.obsdf` files)
 //! (shared machinery in [`lobe`], normalisation expressions in [`normexpr`], names and
 //! constructors in [`registry`]). Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
 
 pub mod blinn;
 pub mod conductor;
+pub mod dielectric;
 pub mod lambert;
 pub mod lobe;
 pub mod lyon;
@@ -26,17 +29,20 @@ pub mod registry;
 pub mod rough_dielectric;
 pub mod rough_dielectric_ms;
 pub mod schlick;
+pub mod tabulated;
 
 use crate::math::{Vec2, Vec3};
 use crate::spectrum::Spectrum;
 pub use blinn::Blinn;
 pub use conductor::RoughConductor;
+pub use dielectric::SmoothDielectric;
 pub use lambert::Lambert;
 pub use lyon::Lyon;
 pub use phong::Phong;
 pub use pow16::Pow16;
 pub use rough_dielectric::RoughDielectric;
 pub use schlick::Schlick;
+pub use tabulated::TabulatedBsdf;
 
 /// Which quantity is transported along the path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -114,6 +120,10 @@ pub enum Bxdfs {
     /// Rough conductor, single scattering (method B's physically based reference, plugin
     /// `microfacet_conductor`).
     RoughConductor(RoughConductor),
+    /// Smooth dielectric interface, delta reflection and refraction (Mitsuba `dielectric`).
+    SmoothDielectric(SmoothDielectric),
+    /// Tabulated rough dielectric face, both sides (`.obsdf` file, plugin `tabulated`).
+    Tabulated(TabulatedBsdf),
 }
 
 macro_rules! dispatch {
@@ -127,6 +137,8 @@ macro_rules! dispatch {
             Bxdfs::Pow16($b) => $e,
             Bxdfs::RoughDielectric($b) => $e,
             Bxdfs::RoughConductor($b) => $e,
+            Bxdfs::SmoothDielectric($b) => $e,
+            Bxdfs::Tabulated($b) => $e,
         }
     };
 }

@@ -3,12 +3,19 @@
 //! segments from the camera (1 = emitters seen directly, 2 = direct lighting, −1 = unbounded).
 //! Russian roulette starts at `rr_depth` with survival probability min(max(β)·η², 0.95).
 //!
+//! Specular (delta) BSDFs such as [`crate::bsdf::SmoothDielectric`]: `eval`/`pdf` are zero, so
+//! next-event estimation adds nothing at such vertices, and an emitter reached by a delta
+//! sample gets MIS weight 1. Refraction: the radiance BTDFs carry 1/η'² (so the radiance inside
+//! a dielectric is η² times the outside one and returns on exit); the Russian-roulette
+//! survival uses β·η² (the accumulated `eta_scale`) so it is not biased by those factors.
+//! Interfaces are surfaces: there are no participating media (a dielectric object is clear).
+//!
 //! Determinism: pixel (x, y) of camera c draws all its numbers from
 //! `Rng::new(seed, c, y·W + x)`, rows are rendered in parallel and written in place, so the
 //! image is identical for any thread count.
 //!
-//! Tests: `tests/render.rs` (furnace: a closed Lambertian room of albedo ρ and radiance Le has
-//! radiance Le/(1−ρ) everywhere; agreement with Mitsuba 3 on the reference Cornell box by
+//! Tests: `tests/furnace.rs` (furnace: a closed Lambertian room of albedo ρ and radiance Le has
+//! radiance Le/(1−ρ) everywhere, also with lossless glass objects inside; agreement with Mitsuba 3 on the reference Cornell box by
 //! z-tests on 16×16 blocks; thread-count independence).
 
 use super::{mis_power, spawn_ray, spawn_ray_to};

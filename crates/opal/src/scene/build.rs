@@ -291,6 +291,12 @@ fn validate_bsdf(id: &str, b: &BsdfDesc) -> Result<()> {
             BsdfDesc::TwoSided(_) => {
                 Err(Error::invalid(format!("bsdf of shape '{id}'"), "twosided inside twosided"))
             }
+            BsdfDesc::Lobe(crate::bsdf::Bxdfs::SmoothDielectric(_) | crate::bsdf::Bxdfs::Tabulated(_)) => {
+                Err(Error::invalid(
+                    format!("bsdf of shape '{id}'"),
+                    "twosided around a dielectric interface (dielectric, tabulated): an interface already has two sides (inside = behind the normal)",
+                ))
+            }
             other => validate_bsdf(id, other),
         },
     }

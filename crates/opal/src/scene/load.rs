@@ -44,7 +44,21 @@ const MAX_INCLUDE_DEPTH: usize = 32;
 /// `Loader::instantiate` + its name here (a unit test checks the two agree).
 pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
     ("shape", &["obj", "ply", "rectangle", "cube", "sphere"]),
-    ("bsdf", &["diffuse", "twosided", "phong", "blinn", "schlick", "lyon", "pow16", "microfacet_conductor"]),
+    (
+        "bsdf",
+        &[
+            "diffuse",
+            "twosided",
+            "phong",
+            "blinn",
+            "schlick",
+            "lyon",
+            "pow16",
+            "microfacet_conductor",
+            "dielectric",
+            "tabulated",
+        ],
+    ),
     ("texture", &["bitmap"]),
     ("emitter", &["area", "point"]),
     ("sensor", &["perspective"]),
@@ -1002,6 +1016,35 @@ impl Loader {
                 p.finish("the method-B lobe parameters")?;
                 let b = build_plugin(&pp).map_err(|err| e.loc.err(format!("{}: {err}", e.describe())))?;
                 Object::Bsdf(BsdfDesc::Lobe(b))
+            }
+            ("bsdf", "dielectric") => {
+                // Mitsuba's defaults: int_ior = 1.5046 (bk7), ext_ior = 1.000277 (air)
+                let mut ior = |name: &str, default: f64| -> Result<f64> {
+                    match p.float_at(name)? {
+                        None => Ok(default),
+                        Some((v, _)) if v.is_finite() && v > 0.0 => Ok(v),
+                        Some((v, l)) => Err(
+                            l.err(format!("{}: `{name}` must be a positive number, got {v}", e.describe()))
+                        ),
+                    }
+                };
+                let int_ior = ior("int_ior", 1.5046)?;
+                let ext_ior = ior("ext_ior", 1.000277)?;
+                p.finish("int_ior, ext_ior (numbers)")?;
+                let b = crate::bsdf::SmoothDielectric::new((int_ior / ext_ior) as f32).map_err(|err| {
+                    e.loc.err(format!("{}: int_ior {int_ior} / ext_ior {ext_ior}: {err}", e.describe()))
+                })?;
+                Object::Bsdf(BsdfDesc::Lobe(crate::bsdf::Bxdfs::SmoothDielectric(b)))
+            }
+            ("bsdf", "tabulated") => {
+                let (fname, floc) = p
+                    .string_at("filename")?
+                    .ok_or_else(|| e.loc.err(format!("{}: `filename` is required", e.describe())))?;
+                p.finish("filename")?;
+                let path = e.resolve(&fname);
+                let b = crate::bsdf::TabulatedBsdf::load(&path)
+                    .map_err(|err| floc.err(format!("{} filename=\"{fname}\": {err}", e.describe())))?;
+                Object::Bsdf(BsdfDesc::Lobe(crate::bsdf::Bxdfs::Tabulated(b)))
             }
             ("texture", "bitmap") => Object::Texture(TextureDesc::Bitmap(self.bitmap(e, &mut p)?)),
             ("shape", "obj" | "ply" | "rectangle" | "cube" | "sphere") => {
