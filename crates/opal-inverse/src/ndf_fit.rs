@@ -939,10 +939,11 @@ impl Problem {
     }
 
     /// Fits a multi-parameter model (Student-t, shift, hybrid): Nelder–Mead over the model's
-    /// free coordinates, coarse stage from `start`, then a fine stage from its optimum with
-    /// steps / 3. Termination: the standard deviation of the objective over the simplex below
-    /// 1 % (coarse) / 0.3 % (fine) of the objective's noise unit.
-    pub fn fit_model(&self, start: &Model) -> opal::Result<FamilyFit> {
+    /// free coordinates, coarse stage from `start` with the coordinates' steps × `step_scale`
+    /// (1 from a rough guess, less from a fitted model), then a fine stage from its optimum with
+    /// steps / 8. Termination: the standard deviation of the objective over the simplex below
+    /// 1 % of the objective's noise unit.
+    pub fn fit_model(&self, start: &Model, step_scale: f64) -> opal::Result<FamilyFit> {
         let mut coords = vec![Coord::LnAlpha];
         if start.gamma.is_some() {
             coords.push(Coord::Q);
@@ -953,7 +954,7 @@ impl Problem {
         for k in 0..start.nodes.len().saturating_sub(1) {
             coords.push(Coord::LnScale(k));
         }
-        self.fit_coords(start, &coords)
+        self.fit_coords(start, &coords, step_scale)
     }
 
     /// Refits a hybrid model: α and every free node multiplier (the shape parameters γ, δ of
@@ -963,10 +964,10 @@ impl Problem {
         for k in 0..start.nodes.len().saturating_sub(1) {
             coords.push(Coord::LnScale(k));
         }
-        self.fit_coords(start, &coords)
+        self.fit_coords(start, &coords, 0.5)
     }
 
-    fn fit_coords(&self, start: &Model, coords: &[Coord]) -> opal::Result<FamilyFit> {
+    fn fit_coords(&self, start: &Model, coords: &[Coord], step_scale: f64) -> opal::Result<FamilyFit> {
         let e0 = self.evaluations();
         let history = Mutex::new(Vec::new());
         let probe = self.simulate(start.ndf()?, self.setup.seed, self.stage_photons(Stage::Fine))?;
@@ -975,9 +976,9 @@ impl Problem {
         let mut objective = f64::INFINITY;
         let mut converged = true;
         let stages: &[(Stage, f64, f64)] = if self.has_coarse_stage() {
-            &[(Stage::Coarse, 1.0, 1e-2), (Stage::Fine, 1.0 / 3.0, 3e-3)]
+            &[(Stage::Coarse, step_scale, 1e-2), (Stage::Fine, step_scale / 8.0, 1e-2)]
         } else {
-            &[(Stage::Fine, 1.0, 3e-3)]
+            &[(Stage::Fine, step_scale, 1e-2)]
         };
         for &(stage, scale, tol) in stages {
             let (m, fx, ok) = self.nelder_mead(&model, coords, stage, scale, tol * unit, &history)?;
@@ -1143,7 +1144,7 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
         let fit = if opts.shift {
             let mut m = Model::new(f, problem.initial_alpha(f)?);
             m.delta = Some(0.0);
-            problem.fit_model(&m)?
+            problem.fit_model(&m, 1.0)?
         } else {
             problem.fit_family(f)?
         };
@@ -1160,7 +1161,7 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
         m.base = Family::Student;
         // start next to the family that fitted best (q = 2/γ: 1 = GGX, → 0 Beckmann)
         m.gamma = Some(if b.base == Family::Beckmann { 2.0 / 0.15 } else { 2.0 / 0.85 });
-        let fit = problem.fit_model(&m)?;
+        let fit = problem.fit_model(&m, 0.5)?;
         let check = problem.check(&fit.model)?;
         cands.push(Candidate { fit, check });
         let si = cands.len() - 1;
