@@ -471,3 +471,46 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
 }
 
 static DEMO_CSV: &str = include_str!("../../data/fit_ndf_demo.csv");
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use opal::bsdf::microfacet::Ndf;
+    use opal::math::Vec3;
+
+    /// Every form of `plate_fitted.toml`'s rough face loads back as the same NDF.
+    #[test]
+    fn fitted_face_toml_round_trips() {
+        let mut student = Model::new(Family::Student, 0.2);
+        student.gamma = Some(3.5);
+        let mut shifted = Model::new(Family::Ggx, 0.1);
+        shifted.delta = Some(8f64.to_radians());
+        let mut hybrid = Model::new(Family::Ggx, 0.3);
+        hybrid.family = Family::Hybrid;
+        hybrid.nodes = vec![(0.0, 2.5), (3f64.to_radians(), 1.4), (6f64.to_radians(), 1.0)];
+        let mut shifted_hybrid = hybrid.clone();
+        shifted_hybrid.delta = Some(5f64.to_radians());
+        let d = tempfile::tempdir().unwrap();
+        for (i, m) in [Model::new(Family::Beckmann, 0.25), student, shifted, hybrid, shifted_hybrid]
+            .into_iter()
+            .enumerate()
+        {
+            let ndf = m.ndf().unwrap();
+            let text = format!(
+                "[plate]\nior = 1.49\nthickness_mm = 2\n[plate.front]\ntype = \"polished\"\n\
+                 [plate.back]\ntype = \"rough\"\n{}",
+                face_toml(&m, &ndf)
+            );
+            let p = d.path().join(format!("p{i}.toml"));
+            std::fs::write(&p, &text).unwrap();
+            let cfg = build_config(&read_plate_file(&p).unwrap(), &SimulateArgs::default()).unwrap();
+            let Face::Rough { ndf: back, .. } = cfg.plate.back else { panic!("rough back") };
+            for deg in [0.0f64, 2.0, 5.0, 9.0, 15.0, 30.0] {
+                let t = deg.to_radians();
+                let w = Vec3::new(t.sin() as f32, 0.0, t.cos() as f32);
+                let (a, b) = (ndf.d(w) as f64, back.d(w) as f64);
+                assert!((a - b).abs() <= 0.01 * a.max(1e-3), "{}: {deg}°: {a} vs {b}\n{text}", m.describe());
+            }
+        }
+    }
+}
