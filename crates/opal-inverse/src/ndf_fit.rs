@@ -1099,7 +1099,8 @@ pub struct FitReport {
     pub decisions: Vec<Decision>,
     /// The independent seed of the checks.
     pub check_seed: u64,
-    /// Whether every optimiser stage of every candidate converged.
+    /// Whether every optimiser stage of every candidate converged (rejected hybrid steps
+    /// excepted).
     pub converged: bool,
 }
 
@@ -1195,7 +1196,11 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
             best = hi;
         }
     }
-    let converged = cands.iter().all(|c| c.fit.converged);
+    // a rejected hybrid step that did not converge does not matter (the rule stopped there)
+    let converged = cands
+        .iter()
+        .enumerate()
+        .all(|(i, c)| c.fit.converged || (i != best && c.fit.family == Family::Hybrid));
     Ok(FitReport {
         candidates: cands,
         best,
