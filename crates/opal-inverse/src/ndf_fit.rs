@@ -2,9 +2,12 @@
 //! goniophotometer curves (method A, inverse half).
 //!
 //! Model: the measured plate is simulated by [`opal::gonio::Gonio`] with the same beam,
-//! detectors and incidence angles as the measurement; the rough face carries an analytic NDF
-//! ([`Family`]: Beckmann = Gauss-like slopes, GGX = Cauchy-like slopes) of roughness α, with
-//! single or multiple scattering on the micro-surface.
+//! detectors and incidence angles as the measurement; the rough face carries an NDF
+//! ([`Model`]): an analytic shape ([`Family`]: Beckmann = Gauss-like slopes, GGX = Cauchy-like
+//! slopes, Student-t = tail exponent γ between them, `Profile::StudentT`) of roughness α,
+//! optionally shifted (`D(θ) ∝ base(|θ − δ|)`, `Profile::Shifted`) and optionally hybrid (a
+//! piecewise-linear table of multipliers of the analytic part at nodes θk = k·h from θm = 0,
+//! `Profile::Hybrid`), with single or multiple scattering on the micro-surface.
 //!
 //! Objective: over the measured points whose value is at least `floor_rel` × the maximum of
 //! their curve (the set is fixed by the measurement, so it does not change between evaluations),
@@ -18,23 +21,34 @@
 //! relative standard error `sqrt(σs² + σm²)/m` over the same points, so `rms / noise ≈ 1` means
 //! "fits within noise".
 //!
-//! Smoothness: every evaluation uses the same seed (common random numbers: batch b of
-//! incidence i always draws from `Rng::new(seed, i, b)`), so the objective varies smoothly with
-//! α instead of jumping by the Monte-Carlo noise. The final quality (`rms`, `noise`) is reported
+//! Smoothness: every evaluation uses the same seed (common random numbers: photon j of
+//! incidence i always draws from `Rng::new(seed, i, j)`), so the objective varies smoothly with
+//! the parameters instead of jumping by the Monte-Carlo noise (the numeric NDFs' rejection
+//! sampler makes it piecewise smooth: a small step can change which proposal is accepted). The final quality (`rms`, `noise`) is reported
 //! from an extra simulation with an *independent* seed, so it is not flattered by the
 //! common-random-number optimum.
 //!
-//! Optimiser: Brent's method (argmin's `BrentOpt`) on ln α, bracket ±ln 1.8 around the
-//! initial guess, moved when the optimum lands on an edge. Initial guess: the half width at
-//! half maximum (HWHM) of the measured transmitted lobe at the smallest incidence; a facet tilted
-//! by θm deflects a ray refracted by the plate by about (n − 1)·θm, so the NDF half width is
-//! about HWHM/(n − 1) (for n ≈ 1.5 the normals are about two times *wider* than the BTDF in angle;
-//! the paper's "two times narrower" rule compares slope spreads); α follows from the family's
-//! half-maximum slope; one probe simulation then rescales α by the ratio of measured to probe
-//! HWHM.
+//! Optimisers (argmin): Brent's method (`BrentOpt`) on ln α for GGX/Beckmann, bracket
+//! ±ln 1.8 around the initial guess, moved when the optimum lands on an edge; Nelder–Mead
+//! (`NelderMead`) for the multi-parameter models over bounded coordinates (ln α, q = 2/γ,
+//! δ in degrees, ln multipliers; out-of-bounds points are clamped and penalised). Two stages:
+//! coarse (`coarse_photons`) from the guess, fine (`photons`) from the coarse optimum. Initial
+//! guess: the half width at half maximum (HWHM) of the measured transmitted lobe at the
+//! smallest incidence; a facet tilted by θm deflects a ray refracted by the plate by about
+//! (n − 1)·θm, so the NDF half width is about HWHM/(n − 1) (for n ≈ 1.5 the normals are about
+//! two times *wider* than the BTDF in angle; the paper's "two times narrower" rule compares
+//! slope spreads); α follows from the family's half-maximum slope; one probe simulation then
+//! rescales α by the ratio of measured to probe HWHM. Student-t starts from the better of
+//! GGX/Beckmann; hybrid from the model `auto` keeps, adding one node at a time.
 //!
-//! Tests: `crates/opal-inverse/tests/ndf_fit.rs` (synthetic round trips, one Mitsuba reference
-//! case in the default tier, all six `#[ignore]`d).
+//! Model selection ([`fit`], [`Problem::compare`]): every candidate is re-simulated with an
+//! independent check seed; a richer (nesting) model is kept only when its χ² improvement ΔX
+//! exceeds c·χ²₀.₉₉(k) + 2.326·sd (k extra parameters, sd the batch-means spread of ΔX, c the
+//! correlation inflation of neighbouring detectors); derivation in docs/fit-ndf.md.
+//!
+//! Tests: `tests` below (models, coordinates, quantiles); `crates/opal-inverse/tests/ndf_fit.rs`
+//! (one Mitsuba reference case in the default tier; all six and the Student-t, shift,
+//! multiple-scattering and hybrid round trips `#[ignore]`d, commands in docs/testing.md).
 
 use crate::measured::Measured;
 use argmin::core::{CostFunction, Executor, State, TerminationReason, TerminationStatus};
