@@ -43,8 +43,9 @@
 //!
 //! Model selection ([`fit`], [`Problem::compare`]): every candidate is re-simulated with an
 //! independent check seed; a richer (nesting) model is kept only when its χ² improvement ΔX
-//! exceeds c·χ²₀.₉₉(k) + 2.326·sd (k extra parameters, sd the batch-means spread of ΔX, c the
-//! correlation inflation of neighbouring detectors); derivation in docs/fit-ndf.md.
+//! exceeds c·χ²₀.₉₉(k) + 2.326·sd (k extra parameters, sd the noise of ΔX propagated from the
+//! standard errors, c the correlation inflation of overlapping detectors); derivation in
+//! docs/fit-ndf.md.
 //!
 //! Tests: `tests` below (models, coordinates, quantiles); `crates/opal-inverse/tests/ndf_fit.rs`
 //! (one Mitsuba reference case in the default tier; all six and the Student-t, shift,
@@ -322,7 +323,7 @@ struct Point {
     det: usize,
     m: f64,
     sm: f64,
-    /// Index of the measured curve (blocks of the batch-means variance never straddle curves).
+    /// Index of the measured curve (only points of one curve share overlapping detectors).
     curve: usize,
 }
 
@@ -486,11 +487,6 @@ pub fn chi2_q99(k: usize) -> f64 {
 /// One-sided 99 % normal quantile.
 pub const Z99: f64 = 2.326;
 
-/// Points per block of the batch-means variance of a χ² difference (consecutive detectors of
-/// one curve; neighbouring detectors overlap and share photons, so single points are not
-/// independent).
-pub const BLOCK: usize = 8;
-
 /// The selection rule applied to a simpler model A and a richer model B (B has `extra_params`
 /// more parameters), both re-simulated with the same *independent* check seed (see `compare`
 /// in docs/fit-ndf.md).
@@ -499,9 +495,10 @@ pub struct Comparison {
     /// Improvement ΔX = Σ_p d_p, d_p = ((sA − m)² − (sB − m)²)/v_p,
     /// v_p = σm² + (σsA² + σsB²)/2.
     pub delta_chi2: f64,
-    /// Batch-means standard deviation of ΔX (blocks of [`BLOCK`] points).
+    /// Standard deviation of ΔX from the simulation and measurement noise (overlapping
+    /// detectors' correlation included).
     pub sd: f64,
-    /// Correlation inflation c = batch-means variance / independent-points variance (≥ 1).
+    /// Correlation inflation c = Var ΔX / Σ Var d_p (≥ 1).
     pub inflation: f64,
     /// Extra parameters of B.
     pub extra_params: usize,
@@ -707,41 +704,58 @@ impl Problem {
     /// The selection rule: is the richer model B (`rich`, `extra_params` more parameters)
     /// better than A (`simple`) by more than noise explains? Both evaluations must come from
     /// the same independent check seed. ΔX = Σ d_p with d_p = ((sA − m)² − (sB − m)²)/v_p,
-    /// v_p = σm² + (σsA² + σsB²)/2. Under "B is no better" ΔX has mean ≤ c·k (B's extra
-    /// parameters fitted to the measurement's noise: a χ²(k) drop, inflated by the correlation
-    /// c of neighbouring points) and a spread estimated by batch means over blocks of
-    /// [`BLOCK`] consecutive points of a curve; B wins when
-    /// ΔX > c · χ²₀.₉₉(k) + z₀.₉₉ · sd (a 1 % false-preference rate for each term).
+    /// v_p = σm² + (σsA² + σsB²)/2. Noise of ΔX: with U = sA − sB and W = sA + sB − 2m
+    /// (d_p = U W / v_p), jointly Gaussian with Var U = σsA² + σsB², Var W = Var U + 4σm²,
+    /// C = Cov(U, W) = σsA² − σsB²: `Var(UW) = E[U]² Var W + E[W]² Var U + 2 E[U] E[W] C +
+    /// Var U Var W + C²`, with E[U]² ≈ U² − Var U and E[W]² ≈ W² − Var W from the observed
+    /// values. Neighbouring detectors overlap, so points p, q of one curve closer than two
+    /// detector radii are correlated by ρ = their common area fraction: the terms linear in
+    /// the noise add 2 ρ sd_p sd_q, the product of noises 2 ρ² sd_p sd_q. The inflation
+    /// c = Var ΔX / Σ Var d_p also scales the χ²(k) drop B's extra parameters buy by fitting
+    /// the measurement's noise. B is kept when ΔX > c · χ²₀.₉₉(k) + z₀.₉₉ · sd (a 1 %
+    /// false-preference level for each term). The two simulations are treated as independent;
+    /// they share part of their random numbers, so sd is conservative.
     pub fn compare(&self, simple: &Evaluation, rich: &Evaluation, extra_params: usize) -> Comparison {
-        let mut d = Vec::with_capacity(self.points.len());
-        let mut blocks: Vec<f64> = Vec::new();
-        let mut cur = (usize::MAX, 0usize);
+        let dets = self.gonio.detectors().list();
+        let r = self.setup.detector_radius;
+        // (curve, detector angle, d_p, Var d_p: part linear in the noise, product of noises)
+        let mut terms: Vec<(usize, f64, f64, f64, f64)> = Vec::with_capacity(self.points.len());
         for p in &self.points {
             let (ra, rb) = (&simple.result.incidences[p.inc], &rich.result.incidences[p.inc]);
             let (sa, sb) = (ra.value[p.det], rb.value[p.det]);
-            let (ea, eb) = (ra.value_stderr[p.det], rb.value_stderr[p.det]);
-            let v = p.sm * p.sm + 0.5 * (ea * ea + eb * eb);
+            let (ea2, eb2) = (ra.value_stderr[p.det].powi(2), rb.value_stderr[p.det].powi(2));
+            let sm2 = p.sm * p.sm;
+            let v = sm2 + 0.5 * (ea2 + eb2);
             if v <= 0.0 {
                 continue;
             }
-            let dp = ((sa - p.m).powi(2) - (sb - p.m).powi(2)) / v;
-            d.push(dp);
-            if cur.0 != p.curve || cur.1 == BLOCK {
-                blocks.push(0.0);
-                cur = (p.curve, 0);
-            }
-            *blocks.last_mut().expect("pushed") += dp;
-            cur.1 += 1;
+            let (u, w) = (sa - sb, sa + sb - 2.0 * p.m);
+            let (vu, vw, c) = (ea2 + eb2, ea2 + eb2 + 4.0 * sm2, ea2 - eb2);
+            // means² estimated without the noise the observed values carry
+            let (mu2, mw2) = ((u * u - vu).max(0.0), (w * w - vw).max(0.0));
+            let muw = (u * w - c).signum() * (mu2 * mw2).sqrt();
+            let lin = (mu2 * vw + mw2 * vu + 2.0 * muw * c).max(0.0) / (v * v);
+            let quad = (vu * vw + c * c) / (v * v);
+            terms.push((p.curve, dets[p.det].angle_deg.to_radians(), u * w / v, lin, quad));
         }
-        let n = d.len().max(2) as f64;
-        let total: f64 = d.iter().sum();
-        let mean = total / n;
-        let var_indep = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() * n / (n - 1.0);
-        let nb = blocks.len().max(2) as f64;
-        let bmean = total / nb;
-        let var_batch = blocks.iter().map(|x| (x - bmean).powi(2)).sum::<f64>() * nb / (nb - 1.0);
-        let inflation = if var_indep > 0.0 { (var_batch / var_indep).max(1.0) } else { 1.0 };
-        let sd = var_batch.max(var_indep).sqrt();
+        let total: f64 = terms.iter().map(|t| t.2).sum();
+        let var_indep: f64 = terms.iter().map(|t| t.3 + t.4).sum();
+        let mut var = var_indep;
+        for (i, a) in terms.iter().enumerate() {
+            for b in terms[i + 1..].iter().take_while(|b| b.0 == a.0) {
+                let dist = (b.1 - a.1).abs();
+                if dist >= 2.0 * r {
+                    continue;
+                }
+                // common area of two discs of radius r at distance `dist`, over π r²: the
+                // correlation of their counts; the product-of-noises part correlates by ρ²
+                let h = dist / (2.0 * r);
+                let rho = (2.0 * h.acos() - 2.0 * h * (1.0 - h * h).sqrt()) / std::f64::consts::PI;
+                var += 2.0 * rho * (a.3 * b.3).sqrt() + 2.0 * rho * rho * (a.4 * b.4).sqrt();
+            }
+        }
+        let inflation = if var_indep > 0.0 { (var / var_indep).max(1.0) } else { 1.0 };
+        let sd = var.max(0.0).sqrt();
         let threshold = inflation * chi2_q99(extra_params) + Z99 * sd;
         Comparison { delta_chi2: total, sd, inflation, extra_params, threshold, accepted: total > threshold }
     }
