@@ -183,3 +183,42 @@ fn non_converged_fit_exits_1_with_outputs() {
     // --no-render: the table is written, the chessboard is not
     assert!(out.join("face.obsdf").exists() && !out.join("chessboard.png").exists());
 }
+
+#[test]
+fn student_with_shift_reports_every_parameter() {
+    // plumbing of the two-parameter family and the shift (few photons: no accuracy claim
+    // beyond "near the truth": GGX α = 0.15, no shift, so γ near 2 and δ small)
+    let d = tempfile::tempdir().unwrap();
+    let csv = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/fit_ndf_demo.csv");
+    let out = d.path().join("fit");
+    let o = opal()
+        .arg("fit-ndf")
+        .arg(&csv)
+        .args(["--entry", "rough", "--family", "student", "--shift", "--photons", "10000", "--json", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(matches!(o.status.code(), Some(0 | 1)), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(j["family"], "student");
+    let p = &j["params"];
+    let (a, g, dd) =
+        (p["alpha"].as_f64().unwrap(), p["gamma"].as_f64().unwrap(), p["delta_deg"].as_f64().unwrap());
+    assert!((a / 0.15 - 1.0).abs() < 0.15, "alpha {a}");
+    assert!((2.0..200.0).contains(&g), "gamma {g}");
+    assert!((0.0..5.0).contains(&dd), "delta {dd}°");
+    assert_eq!(j["candidates"].as_array().unwrap().len(), 3);
+    assert_eq!(j["selection"].as_array().unwrap().len(), 1);
+    assert!(j["selection"][0]["threshold"].as_f64().unwrap() > 0.0);
+    // the kept model is what the NDF table and the plate file hold
+    let toml = std::fs::read_to_string(out.join("plate_fitted.toml")).unwrap();
+    assert!(toml.contains("ndf = \"student:") && toml.contains("shift_deg"), "{toml}");
+    let o = opal()
+        .args(["gonio", "simulate"])
+        .arg(out.join("plate_fitted.toml"))
+        .args(["--photons", "1000", "--quiet", "-o"])
+        .arg(d.path().join("re.csv"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+}

@@ -8,10 +8,13 @@ use crate::plot::{LinePlot, Series, save_panels};
 use crate::util::{ensure_not_input, write_atomic, write_bytes_atomic};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
+use opal::bsdf::microfacet::Ndfs;
 use opal::gonio::{Face, Scattering, Side};
 use opal_inverse::export::{LightSide, bsdf_csv, face_bsdf, ndf_table, zemax_bsdf};
 use opal_inverse::measured::Measured;
-use opal_inverse::ndf_fit::{Evaluation, Family, FamilyFit, FitOn, FitSetup, Problem, fit_families};
+use opal_inverse::ndf_fit::{
+    Candidate, Evaluation, Family, FitOn, FitOptions, FitReport, FitSetup, Model, Problem, fit,
+};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -26,12 +29,21 @@ pub struct FitNdfArgs {
     /// Output folder.
     #[arg(short, long)]
     pub output: PathBuf,
-    /// NDF family: auto (every analytic family, keep the lowest RMS), beckmann, ggx.
+    /// NDF family: auto (ggx, beckmann, student; a richer model is kept only when it beats
+    /// the noise, see docs/fit-ndf.md), beckmann, ggx, student (Student-t: α and tail γ) or
+    /// hybrid (the auto winner plus tabulated nodes of D near θm = 0).
     #[arg(long, default_value = "auto")]
     pub family: String,
-    /// Also fit a peak shift δ (not implemented yet: refused).
+    /// Also fit a peak shift δ (the NDF peaks on the cone θm = δ) in every family.
     #[arg(long)]
     pub shift: bool,
+    /// Maximum number of tabulated nodes of `--family hybrid`.
+    #[arg(long, default_value_t = 4)]
+    pub hybrid_nodes: usize,
+    /// Photons per incidence of the coarse optimisation stage (0: no coarse stage; default
+    /// photons/8 when ≥ 10 000).
+    #[arg(long)]
+    pub coarse_photons: Option<u64>,
     /// Scattering model of the rough face: single, single-hc, multiple.
     #[arg(long, default_value = "single")]
     pub scattering: String,
@@ -80,6 +92,12 @@ pub struct FitOutcome {
     pub json: serde_json::Value,
     /// Whether every family's optimiser converged.
     pub converged: bool,
+    /// The fitted NDF of the kept model (what ndf.csv and the BSDF exports use; for the
+    /// tabulated-material export and the chessboard render).
+    #[allow(dead_code)]
+    pub ndf: Ndfs,
+    /// The whole fit (every candidate, the selection decisions).
+    pub report: FitReport,
 }
 
 fn parse_scattering(s: &str) -> Result<Scattering> {
@@ -92,20 +110,18 @@ fn parse_scattering(s: &str) -> Result<Scattering> {
 }
 
 /// Builds the fitting problem from the arguments (bad input → error, exit 2).
-pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, Vec<Family>)> {
-    let families = match a.family.as_str() {
-        "auto" => Family::ALL.to_vec(),
+pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
+    let family = match a.family.as_str() {
+        "auto" => None,
         f => match Family::parse(f) {
-            Some(x) => vec![x],
-            None if f == "student" || f == "hybrid" => {
-                bail!("--family {f}: not implemented yet (available: auto, ggx, beckmann)")
-            }
-            None => bail!("--family: must be auto, beckmann or ggx, got {f:?}"),
+            Some(x) => Some(x),
+            None => bail!("--family: must be auto, beckmann, ggx, student or hybrid, got {f:?}"),
         },
     };
-    if a.shift {
-        bail!("--shift: the shifted-peak NDF is not implemented yet");
+    if family == Some(Family::Hybrid) && a.hybrid_nodes == 0 {
+        bail!("--hybrid-nodes: must be ≥ 1 with --family hybrid");
     }
+    let opts = FitOptions { family, shift: a.shift, hybrid_nodes: a.hybrid_nodes };
     let fit_on = match a.fit_on.as_str() {
         "T" | "t" => FitOn::T,
         "R" | "r" => FitOn::R,
@@ -155,42 +171,89 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, Vec<Family>)> {
         fit_on,
         floor_rel: a.floor,
         max_iters: a.max_iters.max(1),
+        coarse_photons: match a.coarse_photons {
+            Some(0) => None,
+            Some(n) => Some(n),
+            None => FitSetup::default_coarse(photons),
+        },
     };
     let problem = Problem::new(measured, setup).map_err(|e| anyhow!("{e}"))?;
-    Ok((problem, families))
+    Ok((problem, opts))
 }
 
-fn fam_json(f: &FamilyFit) -> serde_json::Value {
+fn candidate_json(c: &Candidate) -> serde_json::Value {
+    let f = &c.fit;
     serde_json::json!({
-        "family": f.family.name(), "alpha": f.alpha, "alpha_initial": f.alpha_initial,
-        "objective": f.objective, "evaluations": f.evaluations, "converged": f.converged,
-        "history": f.history.iter().map(|(a, o)| serde_json::json!([a, o])).collect::<Vec<_>>(),
+        "family": f.family.name(), "model": f.model.describe(), "alpha": f.alpha,
+        "params": f.model.params_json(), "parameter_count": f.model.parameter_count(),
+        "alpha_initial": f.alpha_initial, "objective": f.objective,
+        "check_rms": c.check.rms, "check_noise": c.check.noise, "check_chi2": c.check.chi2,
+        "evaluations": f.evaluations, "converged": f.converged,
+        "history": f.history.iter().map(|(st, x, o)| serde_json::json!([st, x, o])).collect::<Vec<_>>(),
     })
+}
+
+/// The fitted face as a PLATE.toml `[plate.back]`-style body (`opal gonio simulate` loads it):
+/// analytic parameters when the model has no table, `hybrid` with the node table when it is
+/// not shifted, else the fitted D tabulated every 0.1°.
+fn face_toml(m: &Model, ndf: &Ndfs) -> String {
+    let base = match m.base {
+        Family::Student => format!("student:{}:{}", m.alpha, m.gamma.unwrap_or(2.0)),
+        b => format!("{}:{}", b.name(), m.alpha),
+    };
+    let list = |v: &[f64]| v.iter().map(|x| format!("{x:e}")).collect::<Vec<_>>().join(", ");
+    if m.nodes.is_empty() {
+        let mut s = format!("ndf = \"{base}\"\n");
+        if let Some(d) = m.delta {
+            s.push_str(&format!("shift_deg = {}\n", d.to_degrees()));
+        }
+        s
+    } else if m.delta.is_none() {
+        let p = m.params_json();
+        let nodes = p["hybrid_nodes"].as_array().cloned().unwrap_or_default();
+        let th: Vec<f64> = nodes.iter().filter_map(|n| n["theta_deg"].as_f64()).collect();
+        let d: Vec<f64> = nodes.iter().filter_map(|n| n["d_unnormalised"].as_f64()).collect();
+        format!(
+            "ndf = \"hybrid\"\nbase = \"{base}\"\ntable_theta_deg = [{}]\ntable_d = [{}]\n",
+            list(&th),
+            list(&d)
+        )
+    } else {
+        let rows = ndf_table(ndf, 0.1);
+        let th: Vec<f64> = rows.iter().map(|r| r.0).collect();
+        let d: Vec<f64> = rows.iter().map(|r| r.1).collect();
+        format!("ndf = \"table\"\ntable_theta_deg = [{}]\ntable_d = [{}]\n", list(&th), list(&d))
+    }
 }
 
 /// Runs the fit and writes every output into `out`.
 pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     let t0 = std::time::Instant::now();
-    let (problem, families) = build_problem(a)?;
+    let (problem, opts) = build_problem(a)?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let fits = fit_families(&problem, &families).map_err(|e| anyhow!("fit: {e}"))?;
-    let best = fits[0].clone();
-    let ndf = best.family.ndf(best.alpha);
+    let report = fit(&problem, &opts).map_err(|e| anyhow!("fit: {e}"))?;
+    let best = report.best().fit.clone();
+    let ndf = report.best_ndf().map_err(|e| anyhow!("{e}"))?;
     let s = &problem.setup;
-    // quality from an independent seed (not flattered by the common-random-number optimum)
-    let check_seed = s.seed.wrapping_add(0x9E37_79B9);
-    let ev =
-        problem.evaluate(problem.simulate(ndf.clone(), check_seed, s.photons).map_err(|e| anyhow!("{e}"))?);
+    // quality from the independent check seed (not flattered by the common-random-number
+    // optimum)
+    let check_seed = report.check_seed;
+    let ev = report.best().check.clone();
+    let first = &report.candidates[0].fit;
     let init = problem.evaluate(
         problem
-            .simulate(best.family.ndf(best.alpha_initial), check_seed, s.photons)
+            .simulate(
+                Model::new(first.family, first.alpha_initial).ndf().map_err(|e| anyhow!("{e}"))?,
+                check_seed,
+                s.photons,
+            )
             .map_err(|e| anyhow!("{e}"))?,
     );
     let seconds = t0.elapsed().as_secs_f64();
-    let converged = fits.iter().all(|f| f.converged);
+    let converged = report.converged;
 
     write_curves_csv(&out.join("fitted_curves.csv"), &problem, &ev)?;
-    write_plots(out, &problem, &ev, &format!("{} α={:.4}", best.family.name(), best.alpha))?;
+    write_plots(out, &problem, &ev, &best.model.describe())?;
     // NDF table
     let mut t = String::from("theta_m_deg,D,D_cos\n");
     for (th, d, dc) in ndf_table(&ndf, 0.5) {
@@ -206,9 +269,8 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     let az: Vec<f64> = (0..=18).map(|i| i as f64 * 10.0).collect();
     let rad: Vec<f64> = (0..=45).map(|i| i as f64 * 2.0).collect();
     let comment = format!(
-        "rough face, {} alpha = {:.5}, n = {}, single scattering, power BSDF (1/sr)",
-        best.family.name(),
-        best.alpha,
+        "rough face, {}, n = {}, single scattering, power BSDF (1/sr)",
+        best.model.describe(),
         s.plate.ior
     );
     for side in [LightSide::AirToMaterial, LightSide::MaterialToAir] {
@@ -220,14 +282,13 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     // the fitted face as a PLATE.toml fragment `opal gonio simulate` loads
     let face_toml = format!(
         "# fitted by opal fit-ndf from {}\n[plate]\nior = {}\nthickness_mm = {}\nentry = \"{}\"\n\
-         [plate.front]\ntype = \"polished\"\n[plate.back]\ntype = \"rough\"\nndf = \"{}\"\nalpha = {}\nscattering = \"{}\"\n\
+         [plate.front]\ntype = \"polished\"\n[plate.back]\ntype = \"rough\"\n{}scattering = \"{}\"\n\
          [beam]\ndivergence_deg = {}\n[detectors]\nradius_deg = {}\n",
         a.measured.display(),
         s.plate.ior,
         s.plate.thickness_mm,
         if s.rough_front { "rough" } else { "smooth" },
-        best.family.name(),
-        best.alpha,
+        face_toml(&best.model, &ndf),
         a.scattering,
         s.beam.divergence.to_degrees(),
         s.detector_radius.to_degrees()
@@ -241,7 +302,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
             &best.family.ndf(best.alpha_initial),
             &format!("{} α={:.4}", best.family.name(), best.alpha_initial),
         ),
-        (&ndf, &format!("{} α={:.4}", best.family.name(), best.alpha)),
+        (&ndf, &best.model.describe()),
         a.no_render,
     )?;
 
@@ -250,10 +311,26 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         .iter()
         .map(|(i, r, n, c)| serde_json::json!({"incidence_deg": i, "rms": r, "noise": n, "points": c}))
         .collect();
+    let (ev_coarse, ev_fine) = problem.evaluations_by_stage();
+    let decisions: Vec<_> = report
+        .decisions
+        .iter()
+        .map(|d| {
+            let c = &d.comparison;
+            serde_json::json!({
+                "simple": report.candidates[d.simple].fit.model.describe(),
+                "rich": report.candidates[d.rich].fit.model.describe(),
+                "delta_chi2": c.delta_chi2, "sd": c.sd, "inflation": c.inflation,
+                "extra_params": c.extra_params, "threshold": c.threshold, "accepted": c.accepted,
+            })
+        })
+        .collect();
     let json = serde_json::json!({
         "family": best.family.name(),
         "alpha": best.alpha,
-        "params": {"alpha": best.alpha},
+        "model": best.model.describe(),
+        "params": best.model.params_json(),
+        "shift": a.shift,
         "scattering": a.scattering,
         "fit_on": s.fit_on.label(),
         "rms": ev.rms,
@@ -261,20 +338,25 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "rms_over_noise": ev.rms / ev.noise,
         "rms_initial": init.rms,
         "rms_per_incidence": per,
+        "chi2": ev.chi2,
         "objective": best.objective,
         "points": ev.points,
         "photons_per_incidence": s.photons,
+        "coarse_photons_per_incidence": s.coarse_photons,
         "seed": s.seed,
         "check_seed": check_seed,
         "converged": converged,
         "evaluations": problem.evaluations(),
+        "evaluations_coarse": ev_coarse,
+        "evaluations_full": ev_fine,
         "seconds": seconds,
-        "families": fits.iter().map(fam_json).collect::<Vec<_>>(),
+        "candidates": report.candidates.iter().map(candidate_json).collect::<Vec<_>>(),
+        "selection": decisions,
         "measured": a.measured.display().to_string(),
         "face": face,
     });
     write_bytes_atomic(&out.join("fit.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
-    Ok(FitOutcome { json, converged })
+    Ok(FitOutcome { json, converged, ndf, report })
 }
 
 fn write_curves_csv(path: &Path, p: &Problem, ev: &Evaluation) -> Result<()> {
@@ -364,9 +446,9 @@ pub fn run(a: FitNdfArgs) -> Result<i32> {
         println!("{}", serde_json::to_string_pretty(&o.json)?);
     } else {
         eprintln!(
-            "fit-ndf: {} alpha = {:.5}, rms {:.4} (noise {:.4}), {} evaluations, {:.1} s → {}",
-            o.json["family"].as_str().unwrap_or("?"),
-            o.json["alpha"].as_f64().unwrap_or(f64::NAN),
+            "fit-ndf: {} ({} candidates), rms {:.4} (noise {:.4}), {} evaluations, {:.1} s → {}",
+            o.json["model"].as_str().unwrap_or("?"),
+            o.report.candidates.len(),
             o.json["rms"].as_f64().unwrap_or(f64::NAN),
             o.json["noise"].as_f64().unwrap_or(f64::NAN),
             o.json["evaluations"],
@@ -375,7 +457,7 @@ pub fn run(a: FitNdfArgs) -> Result<i32> {
         );
     }
     if !o.converged {
-        eprintln!("error: the fit did not converge (outputs written; see fit.json → families[].converged)");
+        eprintln!("error: the fit did not converge (outputs written; see fit.json → candidates[].converged)");
         return Ok(1);
     }
     Ok(0)
@@ -405,3 +487,46 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
 }
 
 static DEMO_CSV: &str = include_str!("../../data/fit_ndf_demo.csv");
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use opal::bsdf::microfacet::Ndf;
+    use opal::math::Vec3;
+
+    /// Every form of `plate_fitted.toml`'s rough face loads back as the same NDF.
+    #[test]
+    fn fitted_face_toml_round_trips() {
+        let mut student = Model::new(Family::Student, 0.2);
+        student.gamma = Some(3.5);
+        let mut shifted = Model::new(Family::Ggx, 0.1);
+        shifted.delta = Some(8f64.to_radians());
+        let mut hybrid = Model::new(Family::Ggx, 0.3);
+        hybrid.family = Family::Hybrid;
+        hybrid.nodes = vec![(0.0, 2.5), (3f64.to_radians(), 1.4), (6f64.to_radians(), 1.0)];
+        let mut shifted_hybrid = hybrid.clone();
+        shifted_hybrid.delta = Some(5f64.to_radians());
+        let d = tempfile::tempdir().unwrap();
+        for (i, m) in [Model::new(Family::Beckmann, 0.25), student, shifted, hybrid, shifted_hybrid]
+            .into_iter()
+            .enumerate()
+        {
+            let ndf = m.ndf().unwrap();
+            let text = format!(
+                "[plate]\nior = 1.49\nthickness_mm = 2\n[plate.front]\ntype = \"polished\"\n\
+                 [plate.back]\ntype = \"rough\"\n{}",
+                face_toml(&m, &ndf)
+            );
+            let p = d.path().join(format!("p{i}.toml"));
+            std::fs::write(&p, &text).unwrap();
+            let cfg = build_config(&read_plate_file(&p).unwrap(), &SimulateArgs::default()).unwrap();
+            let Face::Rough { ndf: back, .. } = cfg.plate.back else { panic!("rough back") };
+            for deg in [0.0f64, 2.0, 5.0, 9.0, 15.0, 30.0] {
+                let t = deg.to_radians();
+                let w = Vec3::new(t.sin() as f32, 0.0, t.cos() as f32);
+                let (a, b) = (ndf.d(w) as f64, back.d(w) as f64);
+                assert!((a - b).abs() <= 0.01 * a.max(1e-3), "{}: {deg}°: {a} vs {b}\n{text}", m.describe());
+            }
+        }
+    }
+}
