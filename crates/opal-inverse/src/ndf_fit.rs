@@ -1188,8 +1188,10 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
         let mut m = b.clone();
         m.family = Family::Student;
         m.base = Family::Student;
-        // start next to the family that fitted best (q = 2/γ: 1 = GGX, → 0 Beckmann)
-        m.gamma = Some(if b.base == Family::Beckmann { 2.0 / 0.15 } else { 2.0 / 0.85 });
+        // start on the family that fitted best (q = 2/γ: 1 = GGX, 0.01 ≈ Beckmann), so the
+        // simplex holds the nested model and Nelder–Mead (which keeps its best vertex) can only
+        // improve on it
+        m.gamma = Some(if b.base == Family::Beckmann { 2.0 / 0.01 } else { 2.0 });
         let fit = problem.fit_model(&m, 0.5)?;
         let check = problem.check(&fit.model)?;
         cands.push(Candidate { fit, check });
