@@ -353,11 +353,25 @@ fn write_outputs(
                 let rel_y = q.mean_luminance / p.mean_luminance - 1.0;
                 let rel_rgb: Vec<f64> =
                     (0..3).map(|c| q.mean_rgb[c] / p.mean_rgb[c].max(1e-12) - 1.0).collect();
+                // Monte-Carlo standard error of the re-render's region mean luminance (channels
+                // taken as fully correlated: an upper bound), relative to the photo's mean
+                let var: f64 = m
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &b)| b)
+                    .map(|(k, _)| {
+                        let e = ro.stderr.data[k];
+                        let s = 0.2126 * e[0] as f64 + 0.7152 * e[1] as f64 + 0.0722 * e[2] as f64;
+                        s * s
+                    })
+                    .sum();
+                let rel_se = var.sqrt() / n as f64 / p.mean_luminance.max(1e-12);
                 max_region_err = max_region_err.max(rel_y.abs());
                 regions.push(json!({
                     "view": v.name, "object": o.id, "pixels": n,
                     "photo": p, "rerender": q,
                     "rel_error_luminance": rel_y, "rel_error_rgb": rel_rgb,
+                    "rerender_rel_stderr_luminance": rel_se,
                 }));
             }
         }
