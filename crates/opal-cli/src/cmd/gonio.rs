@@ -255,9 +255,10 @@ fn face_ndf(spec: &FaceSpec, what: &str) -> Result<Ndfs> {
 fn parse_scattering(s: &str, what: &str) -> Result<Scattering> {
     Ok(match s {
         "single" => Scattering::Single,
+        "single-mitsuba" => Scattering::SingleMitsuba,
         "single-hc" => Scattering::SingleHeightCorrelated,
         "multiple" => Scattering::Multiple,
-        _ => bail!("{what}: unknown scattering {s:?} (single, single-hc, multiple)"),
+        _ => bail!("{what}: unknown scattering {s:?} (single, single-mitsuba, single-hc, multiple)"),
     })
 }
 

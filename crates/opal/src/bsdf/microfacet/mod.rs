@@ -122,6 +122,16 @@ impl Ndfs {
 }
 
 impl Ndfs {
+    /// Smith G1 as Mitsuba 3 evaluates it: for Beckmann Walter et al.'s rational
+    /// approximation ([`Beckmann::g1_mitsuba`]), for every other NDF the exact [`Ndf::g1`].
+    #[inline]
+    pub fn g1_mitsuba(&self, w: Vec3, wm: Vec3) -> f32 {
+        match self {
+            Ndfs::Beckmann(b) => b.g1_mitsuba(w, wm),
+            n => n.g1(w, wm),
+        }
+    }
+
     /// Tabulates a profile (Student-t, table, shifted, hybrid, …) into a numerical NDF.
     pub fn numeric(profile: Profile) -> crate::Result<Self> {
         Ok(Ndfs::Numeric(std::sync::Arc::new(NumericNdf::new(profile)?)))
