@@ -11,6 +11,13 @@
 //! Mathematical Functions*, 7.1.26 (erf); M. Giles, "Approximating the erfinv function", GPU
 //! Computing Gems Jade Edition, 2011 (erfinv).
 
+/// Nearest integer (ties away from zero) for |x| < 2³¹, without a libm call (`f32::round` is
+/// one on x86-64 without SSE4.1).
+#[inline(always)]
+fn round_i32(x: f32) -> i32 {
+    (x + 0.5f32.copysign(x)) as i32
+}
+
 /// `(sin 2πu, cos 2πu)` for |u| ≲ 10⁴ (periodic), absolute error < 3·10⁻⁷.
 ///
 /// Reduction to the nearest quarter turn and Taylor polynomials of degree 9 (sin) and 10 (cos)
@@ -18,15 +25,15 @@
 #[inline]
 pub fn sincos_2pi(u: f32) -> (f32, f32) {
     let t = 4.0 * u;
-    let q = t.round();
-    let a = (t - q) * std::f32::consts::FRAC_PI_2;
+    let q = round_i32(t);
+    let a = (t - q as f32) * std::f32::consts::FRAC_PI_2;
     let a2 = a * a;
     let s =
         a * (1.0 + a2 * (-1.0 / 6.0 + a2 * (1.0 / 120.0 + a2 * (-1.0 / 5040.0 + a2 * (1.0 / 362_880.0)))));
     let c = 1.0
         + a2 * (-0.5
             + a2 * (1.0 / 24.0 + a2 * (-1.0 / 720.0 + a2 * (1.0 / 40_320.0 - a2 * (1.0 / 3_628_800.0)))));
-    match (q as i64) & 3 {
+    match q & 3 {
         0 => (s, c),
         1 => (c, -s),
         2 => (-s, -c),
@@ -44,7 +51,8 @@ pub fn exp(x: f32) -> f32 {
         return f32::INFINITY;
     }
     // x = n ln2 + r, |r| ≤ ln2/2 (ln 2 split in two parts for an exact product n·ln2_hi)
-    let n = (x * std::f32::consts::LOG2_E).round();
+    let ni = round_i32(x * std::f32::consts::LOG2_E);
+    let n = ni as f32;
     let r = (x - n * 0.693_145_75) - n * 1.428_606_8e-6;
     // e^r, Taylor to degree 7 (|r| ≤ 0.347: truncation error < 3e-9)
     let p = 1.0
@@ -53,7 +61,6 @@ pub fn exp(x: f32) -> f32 {
                 + r * (1.0 / 6.0
                     + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0 + r * (1.0 / 5040.0)))))));
     // 2^n for n ∈ [−126, 127]; n = 128 (x close to 88.7) split into two factors
-    let ni = n as i32;
     if ni < -126 {
         return p * f32::from_bits(((ni + 126 + 127) as u32) << 23) * f32::from_bits(1 << 23);
     }

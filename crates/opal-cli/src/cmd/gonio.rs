@@ -64,7 +64,7 @@ pub struct SimulateArgs {
     /// NDF of the rough face: FAMILY:ALPHA (ggx:0.15, beckmann:0.25) or student:ALPHA:GAMMA.
     #[arg(long, allow_hyphen_values = true)]
     pub ndf: Option<String>,
-    /// Scattering model of the rough face: single, single-hc (height-correlated G), multiple.
+    /// Scattering model of the rough face: single, single-mitsuba (Mitsuba 3's G1), single-hc (height-correlated G), multiple.
     #[arg(long)]
     pub scattering: Option<String>,
 }

@@ -88,7 +88,11 @@ pub struct Detectors {
     distance: Option<f32>,
     /// Grid size per side (n × n cells over [−1, 1]²).
     n: usize,
-    /// Cell start offsets into `items`: side R cells, then side T cells (2 n² + 1 entries).
+    /// Per grid row (side R rows, then side T rows): the range `[lo, hi)` of its non-empty
+    /// columns and the index in `start` of column `lo` (keeps the look-up data small: for the
+    /// plane-of-incidence layout a few cells per row).
+    rows: Vec<[u32; 3]>,
+    /// Start offsets into `items` of the stored cells, row by row, plus the final end.
     start: Vec<u32>,
     items: Vec<u32>,
     /// Axes as plain arrays, same order as `list` (compact for the look-up loop).
@@ -204,13 +208,19 @@ impl Detectors {
                 }
             }
         }
-        let mut start = Vec::with_capacity(2 * n * n + 1);
+        let mut rows = Vec::with_capacity(2 * n);
+        let mut start = Vec::new();
         let mut items = Vec::new();
-        start.push(0u32);
-        for c in &cells {
-            items.extend_from_slice(c);
-            start.push(items.len() as u32);
+        for row in cells.chunks(n) {
+            let lo = row.iter().position(|c| !c.is_empty()).unwrap_or(0);
+            let hi = row.iter().rposition(|c| !c.is_empty()).map_or(0, |j| j + 1);
+            rows.push([lo as u32, hi.max(lo) as u32, start.len() as u32]);
+            for c in &row[lo..hi.max(lo)] {
+                start.push(items.len() as u32);
+                items.extend_from_slice(c);
+            }
         }
+        start.push(items.len() as u32);
         let axes = list.iter().map(|d| [d.axis.x, d.axis.y, d.axis.z]).collect();
         Ok(Detectors {
             list,
@@ -218,6 +228,7 @@ impl Detectors {
             omega: 2.0 * PI * (1.0 - r.cos()),
             distance: layout.distance_mm.map(|d| d as f32),
             n,
+            rows,
             start,
             items,
             axes,
@@ -270,7 +281,12 @@ impl Detectors {
         let nf = self.n as f32;
         let ix = (((q.x + 1.0) * 0.5 * nf) as usize).min(self.n - 1);
         let iy = (((q.y + 1.0) * 0.5 * nf) as usize).min(self.n - 1);
-        let c = if side == Side::R { 0 } else { self.n * self.n } + ix * self.n + iy;
+        let [lo, hi, base] = self.rows[if side == Side::R { 0 } else { self.n } + ix];
+        let iy = iy as u32;
+        if iy < lo || iy >= hi {
+            return;
+        }
+        let c = (base + iy - lo) as usize;
         let (a, b) = (self.start[c] as usize, self.start[c + 1] as usize);
         for &k in &self.items[a..b] {
             let ax = self.axes[k as usize];

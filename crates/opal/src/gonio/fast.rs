@@ -14,7 +14,10 @@
 //!   weight is G1 of the new direction directly (the separable `G/G1(wo)`);
 //! * GGX visible normals by spherical caps, Beckmann visible slopes from a quantile table plus
 //!   Newton on the exact CDF (`microfacet::beckmann`);
-//! * detector look-up by binning the direction cosines (`Detectors::for_each_hit`).
+//! * detector look-up by binning the direction cosines (`Detectors::for_each_hit`);
+//! * a wavefront loop: chunks of 256 photons advance one interaction at a time, all at the same
+//!   face, so each stage is a tight loop over independent photons (no per-photon branching on
+//!   the face type, latencies overlap across photons); state in arrays (SoA).
 
 use super::{Acc, BeamFrame, Face, Gonio, Plate, Scattering, Side};
 use crate::bsdf::microfacet::{Beckmann, Ggx, Ndf, Ndfs};
@@ -105,8 +108,24 @@ fn rough_sample(
     (w > 0.0).then_some((wi, w))
 }
 
+/// Photons traced together, stage by stage (the wavefront).
+const CHUNK: usize = 256;
+
+/// Per-batch scratch of the wavefront loop (allocated once per batch of `BATCH` photons).
+struct Wavefront {
+    rng: Vec<Rng>,
+    d: Vec<Vec3>,
+    w: Vec<f32>,
+    ok: Vec<bool>,
+    active: Vec<u16>,
+}
+
 impl Gonio {
-    /// Traces photons `first..first + count` of incidence stream `stream` through `fp`.
+    /// Traces photons `first..first + count` of incidence stream `stream` through `fp`, in
+    /// chunks of `CHUNK` photons advanced one surface interaction at a time: in round r every
+    /// photon still inside is at the same face (the lit face for even r), so each round is one
+    /// tight loop over independent photons per stage (sample, then exit / tally / traverse),
+    /// whose latencies the CPU overlaps across photons.
     pub(super) fn trace_batch_fast(
         &self,
         fp: &FastPlate,
@@ -116,6 +135,32 @@ impl Gonio {
         count: u64,
         acc: &mut Acc,
     ) {
+        let mut wf = Wavefront {
+            rng: Vec::with_capacity(CHUNK),
+            d: vec![Vec3::ZERO; CHUNK],
+            w: vec![0.0; CHUNK],
+            ok: vec![false; CHUNK],
+            active: Vec::with_capacity(CHUNK),
+        };
+        let mut k0 = 0;
+        while k0 < count {
+            let m = (count - k0).min(CHUNK as u64) as usize;
+            self.trace_chunk(fp, bf, stream, first + k0, m, acc, &mut wf);
+            k0 += m as u64;
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn trace_chunk(
+        &self,
+        fp: &FastPlate,
+        bf: &BeamFrame,
+        stream: u64,
+        first: u64,
+        m: usize,
+        acc: &mut Acc,
+        wf: &mut Wavefront,
+    ) {
         let BeamFrame { sa, ca, st, ct, .. } = *bf;
         let k0 = Vec3::new(st * ca, st * sa, -ct);
         let e1 = Vec3::new(ct * ca, ct * sa, st);
@@ -124,11 +169,13 @@ impl Gonio {
         // 1 − cos δ without cancellation
         let one_minus_cos = (2.0 * (0.5 * div).sin().powi(2)) as f32;
         let seed = self.setup.seed;
-        let max_int = self.setup.max_interactions;
         let fr = fp.fresnel;
-        for k in 0..count {
-            let mut rng = Rng::new(seed, stream, first + k);
-            let mut d = if div > 0.0 {
+        // beam
+        wf.rng.clear();
+        wf.active.clear();
+        for i in 0..m {
+            let mut rng = Rng::new(seed, stream, first + i as u64);
+            wf.d[i] = if div > 0.0 {
                 let u = rng.next_2d();
                 let om = u.y * one_minus_cos;
                 let r = (om * (2.0 - om)).max(0.0).sqrt();
@@ -137,35 +184,53 @@ impl Gonio {
             } else {
                 k0
             };
-            let mut w = 1.0f32;
-            let mut top = true;
-            let mut ended = false;
-            for _ in 0..max_int {
-                acc.interactions += 1;
-                let face = if top { &fp.front } else { &fp.back };
-                // local frame of the face: +z = outward normal; bottom = rotation by π about x
-                let wo = if top { -d } else { Vec3::new(-d.x, d.y, d.z) };
-                let sampled = match face {
-                    FastFace::Polished => {
+            wf.w[i] = 1.0;
+            wf.rng.push(rng);
+            wf.active.push(i as u16);
+        }
+        let mut lost = 0.0f64;
+        for round in 0..self.setup.max_interactions {
+            if wf.active.is_empty() {
+                break;
+            }
+            acc.interactions += wf.active.len() as u64;
+            let top = round % 2 == 0;
+            let face = if top { &fp.front } else { &fp.back };
+            // stage 1: interaction (local frame of the face: +z = outward normal; the bottom
+            // face is the rotation by π about x, an involution)
+            let to_local = |v: Vec3| if top { v } else { Vec3::new(v.x, -v.y, -v.z) };
+            match face {
+                FastFace::Polished => {
+                    for &i in &wf.active {
+                        let i = i as usize;
+                        let wo = to_local(-wf.d[i]);
                         let inside = wo.z < 0.0;
                         let (f, ct, eta_rel) = fr.eval(wo.z.abs(), inside);
-                        Some(if rng.next_f32() < f {
+                        let wi = if wf.rng[i].next_f32() < f {
                             Vec3::new(-wo.x, -wo.y, wo.z)
                         } else {
                             Vec3::new(-eta_rel * wo.x, -eta_rel * wo.y, if inside { ct } else { -ct })
-                        })
+                        };
+                        wf.d[i] = to_local(wi);
+                        wf.ok[i] = true;
                     }
-                    FastFace::Ggx(g) => {
+                }
+                FastFace::Ggx(g) => {
+                    for &i in &wf.active {
+                        let i = i as usize;
+                        let wo = to_local(-wf.d[i]);
+                        let rng = &mut wf.rng[i];
                         let uc = rng.next_f32();
                         let u = rng.next_2d();
-                        rough_sample(g, |a, b| g.g1_fast(a, b), &fr, wo, uc, u).map(|(wi, s)| {
-                            let w2 = w * s;
-                            acc.lost += (w - w2) as f64;
-                            w = w2;
-                            wi
-                        })
+                        let s = rough_sample(g, |a, b| g.g1_fast(a, b), &fr, wo, uc, u);
+                        apply(s, i, &mut wf.d, &mut wf.w, &mut wf.ok, &mut lost, to_local);
                     }
-                    FastFace::Beckmann { ndf, mitsuba_g1 } => {
+                }
+                FastFace::Beckmann { ndf, mitsuba_g1 } => {
+                    for &i in &wf.active {
+                        let i = i as usize;
+                        let wo = to_local(-wf.d[i]);
+                        let rng = &mut wf.rng[i];
                         let uc = rng.next_f32();
                         let u = rng.next_2d();
                         let s = if *mitsuba_g1 {
@@ -173,54 +238,80 @@ impl Gonio {
                         } else {
                             rough_sample(ndf, |a, b| ndf.g1_fast(a, b), &fr, wo, uc, u)
                         };
-                        s.map(|(wi, s)| {
-                            let w2 = w * s;
-                            acc.lost += (w - w2) as f64;
-                            w = w2;
-                            wi
-                        })
+                        apply(s, i, &mut wf.d, &mut wf.w, &mut wf.ok, &mut lost, to_local);
                     }
-                };
-                let Some(wi) = sampled else {
-                    acc.lost += w as f64;
-                    ended = true;
-                    break;
-                };
-                d = if top { wi } else { Vec3::new(wi.x, -wi.y, -wi.z) };
+                }
+            }
+            // stage 2: exit and tally, or traverse the plate
+            let mut kept = 0;
+            for j in 0..wf.active.len() {
+                let i = wf.active[j] as usize;
+                if !wf.ok[i] {
+                    continue;
+                }
+                let (d, mut w) = (wf.d[i], wf.w[i]);
                 if !(d.is_finite() && w.is_finite()) {
                     acc.bad += 1;
-                    ended = true;
-                    break;
+                    continue;
                 }
-                let exits = if top { d.z > 0.0 } else { d.z < 0.0 };
-                if exits {
+                if if top { d.z > 0.0 } else { d.z < 0.0 } {
                     let side = if top { Side::R } else { Side::T };
                     match side {
                         Side::R => acc.r += w as f64,
                         Side::T => acc.t += w as f64,
                     }
-                    let wf = w as f64;
+                    let wd = w as f64;
                     let inv_cos = 1.0 / (d.z.abs() as f64).max(1e-6);
-                    self.dets.for_each_hit(side, d, Vec3::ZERO, |i| {
-                        acc.sum[i] += wf;
-                        acc.sum2[i] += wf * wf;
-                        acc.sum_bsdf[i] += wf * inv_cos;
-                        acc.hits[i] += 1;
+                    self.dets.for_each_hit(side, d, Vec3::ZERO, |k| {
+                        acc.sum[k] += wd;
+                        acc.sum2[k] += wd * wd;
+                        acc.sum_bsdf[k] += wd * inv_cos;
+                        acc.hits[k] += 1;
                     });
-                    ended = true;
-                    break;
+                    continue;
                 }
                 if fp.mu > 0.0 {
-                    let len = fp.thick / d.z.abs();
-                    let w2 = w * crate::fastmath::exp(-fp.mu * len);
+                    let w2 = w * crate::fastmath::exp(-fp.mu * fp.thick / d.z.abs());
                     acc.absorbed += (w - w2) as f64;
                     w = w2;
+                    wf.w[i] = w;
                 }
-                top = !top;
+                wf.active[kept] = i as u16;
+                kept += 1;
             }
-            if !ended {
-                acc.lost += w as f64;
-            }
+            wf.active.truncate(kept);
+        }
+        // beyond the interaction limit
+        for &i in &wf.active {
+            lost += wf.w[i as usize] as f64;
+        }
+        acc.lost += lost;
+    }
+}
+
+/// Stores the outcome of a rough-face sample of photon `i`: new direction (world frame) and
+/// weight, or the photon's weight booked as lost.
+#[inline(always)]
+fn apply(
+    s: Option<(Vec3, f32)>,
+    i: usize,
+    d: &mut [Vec3],
+    w: &mut [f32],
+    ok: &mut [bool],
+    lost: &mut f64,
+    to_world: impl Fn(Vec3) -> Vec3,
+) {
+    match s {
+        Some((wi, g)) => {
+            let w2 = w[i] * g;
+            *lost += (w[i] - w2) as f64;
+            w[i] = w2;
+            d[i] = to_world(wi);
+            ok[i] = true;
+        }
+        None => {
+            *lost += w[i] as f64;
+            ok[i] = false;
         }
     }
 }

@@ -169,6 +169,9 @@ impl Ndf for Ndfs {
 
 /// Rotates a slope-space sample `(x, y)` drawn for an incident direction in the x–z plane to
 /// the azimuth of `w` and returns the unit normal `normalize(-x, -y, 1)` (Heitz & d'Eon 2014).
+/// (Beckmann fuses this step into its sampler; kept for other slope-space samplers and the
+/// Beckmann cross-check test.)
+#[cfg_attr(not(test), allow(dead_code))]
 #[inline]
 pub(crate) fn slopes_to_normal(w: Vec3, x: f32, y: f32) -> Vec3 {
     let r = (w.x * w.x + w.y * w.y).sqrt();
