@@ -180,8 +180,11 @@ impl Fresnel {
         // with η_rel = n_i/n_t: rs = (η_rel c − ct)/(η_rel c + ct), rp = (c − η_rel ct)/(c + η_rel ct)
         let a = eta_rel * c;
         let b = eta_rel * ct;
-        let rs = (a - ct) / (a + ct);
-        let rp = (c - b) / (c + b);
+        // one division for both ratios (p q > 0 outside total internal reflection)
+        let (p, q) = (a + ct, c + b);
+        let inv = 1.0 / (p * q);
+        let rs = (a - ct) * q * inv;
+        let rp = (c - b) * p * inv;
         (0.5 * (rs * rs + rp * rp), ct, eta_rel)
     }
 }

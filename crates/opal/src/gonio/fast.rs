@@ -23,7 +23,7 @@ use super::{Acc, BeamFrame, Face, Gonio, Plate, Scattering, Side};
 use crate::bsdf::microfacet::{Beckmann, Ggx, Ndf, Ndfs};
 use crate::fastmath::{Fresnel, sincos_2pi};
 use crate::math::{Vec2, Vec3};
-use crate::sampling::Rng;
+use crate::sampling::{Rng, RngStream};
 
 /// A face resolved for the fast loop.
 #[derive(Clone, Copy, Debug)]
@@ -168,13 +168,13 @@ impl Gonio {
         let div = self.setup.beam.divergence;
         // 1 − cos δ without cancellation
         let one_minus_cos = (2.0 * (0.5 * div).sin().powi(2)) as f32;
-        let seed = self.setup.seed;
+        let streams = RngStream::new(self.setup.seed, stream);
         let fr = fp.fresnel;
         // beam
         wf.rng.clear();
         wf.active.clear();
         for i in 0..m {
-            let mut rng = Rng::new(seed, stream, first + i as u64);
+            let mut rng = streams.rng(first + i as u64);
             wf.d[i] = if div > 0.0 {
                 let u = rng.next_2d();
                 let om = u.y * one_minus_cos;

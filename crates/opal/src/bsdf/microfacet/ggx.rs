@@ -40,9 +40,10 @@ impl Ggx {
         if w.dot(wm) * w.z <= 0.0 {
             return 0.0;
         }
-        let z2 = w.z * w.z;
-        let a2t2 = self.alpha * self.alpha * (w.x * w.x + w.y * w.y) / z2;
-        2.0 / (1.0 + (1.0 + a2t2).sqrt())
+        // 2/(1 + √(1 + α² tan²θ)) multiplied through by |cos θ|: one division
+        let z = w.z.abs();
+        let a2r2 = self.alpha * self.alpha * (w.x * w.x + w.y * w.y);
+        2.0 * z / (z + (z * z + a2r2).sqrt())
     }
 }
 
