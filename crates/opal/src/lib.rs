@@ -10,6 +10,7 @@
 //! * [`spectrum`] — the RGB [`Spectrum`](spectrum::Spectrum) newtype every colour goes through.
 //! * [`sampling`] — counter-based random numbers and warping functions with their pdfs.
 //! * [`bsdf`] — the [`Bxdf`](bsdf::Bxdf) contract, [`TransportMode`](bsdf::TransportMode) and models.
+//! * [`fastmath`] — fast f32 polynomial sincos/exp/ln/erf/erfinv and Fresnel for hot loops.
 //! * [`validate`] — χ² goodness-of-fit, quadrature helpers (product code: tests and CLI use it).
 //! * [`texture`] — texture lookups (Mitsuba `bitmap` semantics).
 //! * [`error`] — the library error type.
@@ -19,6 +20,7 @@ pub mod accel;
 pub mod bsdf;
 pub mod camera;
 pub mod error;
+pub mod fastmath;
 pub mod geometry;
 pub mod gonio;
 pub mod image;

@@ -87,7 +87,8 @@ fn run_case(photons: u64) {
         ("beckmann_a0.25", Ndfs::beckmann(0.25)),
     ] {
         for entry in ["smooth", "rough"] {
-            let rough = Face::Rough { ndf: ndf.clone(), scattering: Scattering::Single };
+            // Mitsuba's G1 (Beckmann: Walter's rational approximation; GGX: exact = `Single`)
+            let rough = Face::Rough { ndf: ndf.clone(), scattering: Scattering::SingleMitsuba };
             let (front, back) =
                 if entry == "rough" { (rough, Face::Polished) } else { (Face::Polished, rough) };
             let plate =

@@ -103,9 +103,10 @@ pub struct FitOutcome {
 fn parse_scattering(s: &str) -> Result<Scattering> {
     Ok(match s {
         "single" => Scattering::Single,
+        "single-mitsuba" => Scattering::SingleMitsuba,
         "single-hc" => Scattering::SingleHeightCorrelated,
         "multiple" => Scattering::Multiple,
-        _ => bail!("--scattering: must be single, single-hc or multiple, got {s:?}"),
+        _ => bail!("--scattering: must be single, single-mitsuba, single-hc or multiple, got {s:?}"),
     })
 }
 

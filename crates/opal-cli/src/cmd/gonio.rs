@@ -64,7 +64,7 @@ pub struct SimulateArgs {
     /// NDF of the rough face: FAMILY:ALPHA (ggx:0.15, beckmann:0.25) or student:ALPHA:GAMMA.
     #[arg(long, allow_hyphen_values = true)]
     pub ndf: Option<String>,
-    /// Scattering model of the rough face: single, single-hc (height-correlated G), multiple.
+    /// Scattering model of the rough face: single, single-mitsuba (Mitsuba 3's G1), single-hc (height-correlated G), multiple.
     #[arg(long)]
     pub scattering: Option<String>,
 }
@@ -255,9 +255,10 @@ fn face_ndf(spec: &FaceSpec, what: &str) -> Result<Ndfs> {
 fn parse_scattering(s: &str, what: &str) -> Result<Scattering> {
     Ok(match s {
         "single" => Scattering::Single,
+        "single-mitsuba" => Scattering::SingleMitsuba,
         "single-hc" => Scattering::SingleHeightCorrelated,
         "multiple" => Scattering::Multiple,
-        _ => bail!("{what}: unknown scattering {s:?} (single, single-hc, multiple)"),
+        _ => bail!("{what}: unknown scattering {s:?} (single, single-mitsuba, single-hc, multiple)"),
     })
 }
 

@@ -90,6 +90,7 @@ impl RoughConductor {
     fn g(&self, wo: Vec3, wi: Vec3, wm: Vec3) -> f32 {
         match self.shadowing {
             Shadowing::Separable => self.ndf.g(wo, wi, wm),
+            Shadowing::SeparableMitsuba => self.ndf.g1_mitsuba(wo, wm) * self.ndf.g1_mitsuba(wi, wm),
             Shadowing::HeightCorrelated => self.ndf.g_height_correlated(wo, wi, wm),
         }
     }

@@ -2,9 +2,16 @@
 //!
 //! A detector is an axis (unit vector, world frame) and an angular radius r, on side R
 //! (axis z > 0, photons leaving the lit face) or T (axis z < 0, photons leaving the back face).
-//! Neighbouring detectors may overlap (a photon is then counted by each). The look-up is a
-//! latitude–longitude grid over the sphere whose cells list the detectors that may contain a
-//! direction of the cell, so counting a photon costs one cell lookup and a few dot products.
+//! Neighbouring detectors may overlap (a photon is then counted by each). The look-up bins a
+//! direction by its components parallel to the plate, `(d_x, d_y)` (the orthographic projection
+//! of each hemisphere onto the unit disk), on an n × n grid per side — no `acos`/`atan2`, two
+//! multiply-adds per photon. Each cell lists the detectors whose cap may project into it (the
+//! bounding box of the projected cap boundary, of the part of the horizon inside the cap, and a
+//! margin), so counting a photon costs one cell look-up and a few dot products. Cells are
+//! about half a detector radius wide (n ≤ 512); near the horizon a cell spans a larger polar
+//! angle (dθ = dρ/cos θ), which only lengthens its candidate list.
+//! Test: `gonio::tests::detector_lookup_matches_brute_force` (every detector, random and
+//! near-boundary directions, both layouts).
 
 use crate::math::Vec3;
 use std::f64::consts::PI;
@@ -79,10 +86,17 @@ pub struct Detectors {
     cos_r: f32,
     omega: f64,
     distance: Option<f32>,
-    nt: usize,
-    np: usize,
+    /// Grid size per side (n × n cells over [−1, 1]²).
+    n: usize,
+    /// Per grid row (side R rows, then side T rows): the range `[lo, hi)` of its non-empty
+    /// columns and the index in `start` of column `lo` (keeps the look-up data small: for the
+    /// plane-of-incidence layout a few cells per row).
+    rows: Vec<[u32; 3]>,
+    /// Start offsets into `items` of the stored cells, row by row, plus the final end.
     start: Vec<u32>,
     items: Vec<u32>,
+    /// Axes as plain arrays, same order as `list` (compact for the look-up loop).
+    axes: Vec<[f32; 3]>,
     hemisphere: bool,
 }
 
@@ -153,47 +167,71 @@ impl Detectors {
         if list.is_empty() {
             return Err(crate::Error::invalid("detectors", "no detector defined"));
         }
-        // look-up grid: cells of ~max(r, 0.5°)
-        let cell = r.max(0.5f64.to_radians());
-        let nt = ((PI / cell).ceil() as usize).clamp(1, 720);
-        let np = ((2.0 * PI / cell).ceil() as usize).clamp(1, 1440);
-        let dt = PI / nt as f64;
-        let dp = 2.0 * PI / np as f64;
-        let margin = r + 1.5 * cell.max(dt).max(dp);
-        let cos_margin = margin.min(PI).cos();
-        let mut cells: Vec<Vec<u32>> = vec![Vec::new(); nt * np];
+        // look-up grid over (d_x, d_y) per side: cells of ~r/2 (in projected units sin r / 2)
+        let n = ((4.0 / r.sin()).ceil() as usize).clamp(8, 512);
+        let h = 2.0 / n as f64;
+        let cell_of = |x: f64| (((x + 1.0) / h).floor().max(0.0) as usize).min(n - 1);
+        let mut cells: Vec<Vec<u32>> = vec![Vec::new(); 2 * n * n];
         for (k, det) in list.iter().enumerate() {
             let a = det.axis.as_dvec3();
-            let ta = a.z.clamp(-1.0, 1.0).acos();
-            let i0 = ((ta - margin) / dt).floor().max(0.0) as usize;
-            let i1 = (((ta + margin) / dt).ceil() as usize).min(nt);
-            for i in i0..i1 {
-                let t = (i as f64 + 0.5) * dt;
-                for j in 0..np {
-                    let p = (j as f64 + 0.5) * dp;
-                    let c = crate::math::spherical_direction_f64(t, p);
-                    if c.dot(a) >= cos_margin {
-                        cells[i * np + j].push(k as u32);
-                    }
+            let (e1, e2) = a.any_orthonormal_pair();
+            let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+            let mut add = |p: crate::math::DVec3| {
+                x0 = x0.min(p.x);
+                x1 = x1.max(p.x);
+                y0 = y0.min(p.y);
+                y1 = y1.max(p.y);
+            };
+            // cap boundary (a convex curve on the sphere: its projection bounds the projected cap
+            // unless the cap crosses the horizon, whose arc inside the cap is added below)
+            let nb = 256;
+            for i in 0..nb {
+                let b = 2.0 * PI * i as f64 / nb as f64;
+                add(a * r.cos() + (e1 * b.cos() + e2 * b.sin()) * r.sin());
+            }
+            add(a);
+            let nh = if a.z.abs() < (r + 0.01).min(PI / 2.0).sin() { 4096 } else { 0 };
+            for i in 0..nh {
+                let b = 2.0 * PI * i as f64 / nh as f64;
+                let p = crate::math::DVec3::new(b.cos(), b.sin(), 0.0);
+                if p.dot(a) >= (r + 2.0 * PI / nh as f64).cos() {
+                    add(p);
+                }
+            }
+            // margin: chord sagitta of the sampled boundary (r·(π/nb)²/2 < 8e-5); the horizon
+            // samples extend one step beyond the cap, covering the ends of its arc
+            let m = 1e-4;
+            let side_off = if det.side == Side::R { 0 } else { n * n };
+            for i in cell_of(x0 - m)..=cell_of(x1 + m) {
+                for j in cell_of(y0 - m)..=cell_of(y1 + m) {
+                    cells[side_off + i * n + j].push(k as u32);
                 }
             }
         }
-        let mut start = Vec::with_capacity(nt * np + 1);
+        let mut rows = Vec::with_capacity(2 * n);
+        let mut start = Vec::new();
         let mut items = Vec::new();
-        start.push(0u32);
-        for c in &cells {
-            items.extend_from_slice(c);
-            start.push(items.len() as u32);
+        for row in cells.chunks(n) {
+            let lo = row.iter().position(|c| !c.is_empty()).unwrap_or(0);
+            let hi = row.iter().rposition(|c| !c.is_empty()).map_or(0, |j| j + 1);
+            rows.push([lo as u32, hi.max(lo) as u32, start.len() as u32]);
+            for c in &row[lo..hi.max(lo)] {
+                start.push(items.len() as u32);
+                items.extend_from_slice(c);
+            }
         }
+        start.push(items.len() as u32);
+        let axes = list.iter().map(|d| [d.axis.x, d.axis.y, d.axis.z]).collect();
         Ok(Detectors {
             list,
             cos_r: r.cos() as f32,
             omega: 2.0 * PI * (1.0 - r.cos()),
             distance: layout.distance_mm.map(|d| d as f32),
-            nt,
-            np,
+            n,
+            rows,
             start,
             items,
+            axes,
             hemisphere,
         })
     }
@@ -240,18 +278,41 @@ impl Detectors {
                 (p + d * t).normalize()
             }
         };
-        let theta = q.z.clamp(-1.0, 1.0).acos();
-        let mut phi = q.y.atan2(q.x);
-        if phi < 0.0 {
-            phi += 2.0 * std::f32::consts::PI;
+        let nf = self.n as f32;
+        let ix = (((q.x + 1.0) * 0.5 * nf) as usize).min(self.n - 1);
+        let iy = (((q.y + 1.0) * 0.5 * nf) as usize).min(self.n - 1);
+        let [lo, hi, base] = self.rows[if side == Side::R { 0 } else { self.n } + ix];
+        let iy = iy as u32;
+        if iy < lo || iy >= hi {
+            return;
         }
-        let i = ((theta * self.nt as f32 / std::f32::consts::PI) as usize).min(self.nt - 1);
-        let j = ((phi * self.np as f32 / (2.0 * std::f32::consts::PI)) as usize).min(self.np - 1);
-        let c = i * self.np + j;
-        for &k in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
-            let det = &self.list[k as usize];
-            if det.side == side && det.axis.dot(q) >= self.cos_r {
+        let c = (base + iy - lo) as usize;
+        let (a, b) = (self.start[c] as usize, self.start[c + 1] as usize);
+        for &k in &self.items[a..b] {
+            let ax = self.axes[k as usize];
+            if ax[0] * q.x + ax[1] * q.y + ax[2] * q.z >= self.cos_r {
                 f(k as usize);
+            }
+        }
+    }
+
+    /// Brute-force version of [`Detectors::for_each_hit`] (every detector of `side`), for tests.
+    pub fn for_each_hit_brute_force(&self, side: Side, d: Vec3, p: Vec3, mut f: impl FnMut(usize)) {
+        let q = match self.distance {
+            None => d,
+            Some(dist) => {
+                let b = p.dot(d);
+                let c = p.length_squared() - dist * dist;
+                let disc = b * b - c;
+                if disc < 0.0 {
+                    return;
+                }
+                (p + d * (-b + disc.sqrt())).normalize()
+            }
+        };
+        for (k, det) in self.list.iter().enumerate() {
+            if det.side == side && det.axis.dot(q) >= self.cos_r {
+                f(k);
             }
         }
     }

@@ -122,6 +122,16 @@ impl Ndfs {
 }
 
 impl Ndfs {
+    /// Smith G1 as Mitsuba 3 evaluates it: for Beckmann Walter et al.'s rational
+    /// approximation ([`Beckmann::g1_mitsuba`]), for every other NDF the exact [`Ndf::g1`].
+    #[inline]
+    pub fn g1_mitsuba(&self, w: Vec3, wm: Vec3) -> f32 {
+        match self {
+            Ndfs::Beckmann(b) => b.g1_mitsuba(w, wm),
+            n => n.g1(w, wm),
+        }
+    }
+
     /// Tabulates a profile (Student-t, table, shifted, hybrid, …) into a numerical NDF.
     pub fn numeric(profile: Profile) -> crate::Result<Self> {
         Ok(Ndfs::Numeric(std::sync::Arc::new(NumericNdf::new(profile)?)))
@@ -159,6 +169,9 @@ impl Ndf for Ndfs {
 
 /// Rotates a slope-space sample `(x, y)` drawn for an incident direction in the x–z plane to
 /// the azimuth of `w` and returns the unit normal `normalize(-x, -y, 1)` (Heitz & d'Eon 2014).
+/// (Beckmann fuses this step into its sampler; kept for other slope-space samplers and the
+/// Beckmann cross-check test.)
+#[cfg_attr(not(test), allow(dead_code))]
 #[inline]
 pub(crate) fn slopes_to_normal(w: Vec3, x: f32, y: f32) -> Vec3 {
     let r = (w.x * w.x + w.y * w.y).sqrt();
