@@ -54,11 +54,11 @@ pub fn face_table_for(
 ) -> opal::Result<(TabulatedBsdf, f64)> {
     let eta = ior as f32;
     match scattering {
-        Scattering::Single | Scattering::SingleHeightCorrelated => {
-            let (sh, name) = if scattering == Scattering::Single {
-                (Shadowing::Separable, "separable")
-            } else {
-                (Shadowing::HeightCorrelated, "height-correlated")
+        Scattering::Single | Scattering::SingleMitsuba | Scattering::SingleHeightCorrelated => {
+            let (sh, name) = match scattering {
+                Scattering::Single => (Shadowing::Separable, "separable"),
+                Scattering::SingleMitsuba => (Shadowing::SeparableMitsuba, "separable (Mitsuba's G1)"),
+                _ => (Shadowing::HeightCorrelated, "height-correlated"),
             };
             let src = RoughDielectric::new(ndf.clone(), eta, sh)?;
             let source =

@@ -861,3 +861,57 @@ fn dielectric_and_tabulated_bsdfs() {
     let m = opal::scene::Scene::build(&d).unwrap_err().to_string();
     assert!(m.contains("ball") && m.contains("twosided"), "{m}");
 }
+
+#[test]
+fn rough_dielectric_plugin() {
+    use opal::bsdf::{Bxdf, Bxdfs, TransportMode};
+    let s = ok(r#"
+    <shape type="rectangle"><bsdf type="roughdielectric"/></shape>
+    <shape type="rectangle"><bsdf type="roughdielectric">
+        <string name="distribution" value="ggx"/><float name="alpha" value="0.3"/>
+        <float name="int_ior" value="1.49"/><string name="ext_ior" value="water"/>
+        <string name="shadowing" value="height_correlated"/>
+    </bsdf></shape>
+    <shape type="rectangle"><bsdf type="roughdielectric">
+        <string name="scattering" value="multiple"/><integer name="alpha" value="1"/>
+        <string name="int_ior" value="acrylic glass"/>
+    </bsdf></shape>"#);
+    let b = |i: usize| match &s.shapes[i].bsdf {
+        BsdfDesc::Lobe(b) => b.clone(),
+        o => panic!("{o:?}"),
+    };
+    let Bxdfs::RoughDielectric(d) = b(0) else { panic!("{:?}", b(0)) };
+    // Mitsuba's defaults: Beckmann, α = 0.1, bk7 in air, separable G
+    assert!((d.eta - 1.5046 / 1.000277).abs() < 1e-6, "{}", d.eta);
+    assert!(matches!(d.ndf, opal::bsdf::microfacet::Ndfs::Beckmann(_)));
+    assert_eq!(d.shadowing, opal::bsdf::rough_dielectric::Shadowing::Separable);
+    let Bxdfs::RoughDielectric(d) = b(1) else { panic!() };
+    assert!((d.eta - 1.49 / 1.333).abs() < 1e-6 && matches!(d.ndf, opal::bsdf::microfacet::Ndfs::Ggx(_)));
+    assert_eq!(d.shadowing, opal::bsdf::rough_dielectric::Shadowing::HeightCorrelated);
+    let Bxdfs::RoughDielectricMs(m) = b(2) else { panic!() };
+    assert!((m.eta - 1.49 / 1.000277).abs() < 1e-6);
+    // transmits and reflects
+    let wo = Vec3::new(0.3, 0.0, 0.954).normalize();
+    assert!(b(2).eval(wo, Vec3::new(-0.3, 0.0, -0.954).normalize(), TransportMode::Radiance)[0] > 0.0);
+    assert!(b(2).eval(wo, Vec3::new(-0.3, 0.0, 0.954).normalize(), TransportMode::Radiance)[0] > 0.0);
+    for (body, want) in [
+        (r#"<float name="alpha_u" value="0.1"/>"#, "unknown parameter `alpha_u`"),
+        (r#"<rgb name="specular_transmittance" value="1"/>"#, "specular_transmittance"),
+        (r#"<string name="distribution" value="phong"/>"#, "\"phong\""),
+        (r#"<float name="alpha" value="0"/>"#, "alpha"),
+        (r#"<float name="int_ior" value="-1.5"/>"#, "int_ior"),
+        (r#"<string name="int_ior" value="unobtainium"/>"#, "unobtainium"),
+        (r#"<float name="int_ior" value="1.000277"/>"#, "index-matched"),
+        (r#"<string name="scattering" value="double"/>"#, "\"double\""),
+        (r#"<string name="shadowing" value="vcavity"/>"#, "vcavity"),
+        (
+            r#"<string name="scattering" value="multiple"/><string name="shadowing" value="separable"/>"#,
+            "height-correlated",
+        ),
+    ] {
+        let (_, e) = err_body(&format!(
+            "<shape type=\"rectangle\">\n<bsdf type=\"roughdielectric\">{body}</bsdf></shape>"
+        ));
+        assert!(e.contains(want) && e.contains("scene.xml:"), "{body}: {e}");
+    }
+}

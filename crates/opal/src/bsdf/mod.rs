@@ -9,8 +9,9 @@
 //! * [`Bxdfs`]: the runtime set (enum, `match` dispatch, no allocation per hit).
 //!
 //! Models: [`lambert`]; method B lobes [`phong`], [`blinn`], [`schlick`], [`lyon`], [`pow16`],
-//! [`conductor`]; dielectric interfaces [`rough_dielectric`] (and [`rough_dielectric_ms`], power
-//! only), [`dielectric`] (smooth, delta lobes), [`tabulated`] (a rough face tabulated from any of
+//! [`conductor`]; method A's rough dielectric interface [`rough_dielectric`] (single
+//! scattering) and [`rough_dielectric_ms`] (multiple scattering), NDFs in [`microfacet`];
+//! [`dielectric`] (smooth, delta lobes), [`tabulated`] (a rough face tabulated from any of
 //! them, loaded from `.obsdf` files)
 //! (shared machinery in [`lobe`], normalisation expressions in [`normexpr`], names and
 //! constructors in [`registry`]). Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
@@ -41,6 +42,7 @@ pub use lyon::Lyon;
 pub use phong::Phong;
 pub use pow16::Pow16;
 pub use rough_dielectric::RoughDielectric;
+pub use rough_dielectric_ms::RoughDielectricMs;
 pub use schlick::Schlick;
 pub use tabulated::TabulatedBsdf;
 
@@ -117,6 +119,9 @@ pub enum Bxdfs {
     Pow16(Pow16),
     /// Rough dielectric interface, single scattering (Walter et al. 2007), any NDF.
     RoughDielectric(RoughDielectric),
+    /// Rough dielectric interface, multiple scattering on the micro-surface (Heitz et al.
+    /// 2016): exact sampling, stochastic `eval`, approximate `pdf` (see the module).
+    RoughDielectricMs(RoughDielectricMs),
     /// Rough conductor, single scattering (method B's physically based reference, plugin
     /// `microfacet_conductor`).
     RoughConductor(RoughConductor),
@@ -136,6 +141,7 @@ macro_rules! dispatch {
             Bxdfs::Lyon($b) => $e,
             Bxdfs::Pow16($b) => $e,
             Bxdfs::RoughDielectric($b) => $e,
+            Bxdfs::RoughDielectricMs($b) => $e,
             Bxdfs::RoughConductor($b) => $e,
             Bxdfs::SmoothDielectric($b) => $e,
             Bxdfs::Tabulated($b) => $e,

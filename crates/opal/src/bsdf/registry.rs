@@ -22,7 +22,7 @@ use super::microfacet::{Beckmann, Ggx, Ndfs};
 use super::normexpr::NormExpr;
 use super::pow16::{PAPER_A, PAPER_B};
 use super::rough_dielectric::Shadowing;
-use super::{Blinn, Bxdfs, Lambert, Lyon, Phong, Pow16, Schlick};
+use super::{Blinn, Bxdfs, Lambert, Lyon, Phong, Pow16, RoughDielectric, RoughDielectricMs, Schlick};
 use crate::error::{Error, Result};
 use crate::spectrum::Spectrum;
 use std::collections::BTreeMap;
@@ -118,9 +118,146 @@ impl PluginParams {
     }
 }
 
-/// The method-B plugin names (plus `diffuse`), in documentation order.
+/// The plugin names (`diffuse`, the method-B lobes, method A's `roughdielectric`), in
+/// documentation order.
 pub const PLUGINS: &[&str] =
-    &["diffuse", "phong", "blinn", "schlick", "lyon", "pow16", "microfacet_conductor"];
+    &["diffuse", "phong", "blinn", "schlick", "lyon", "pow16", "microfacet_conductor", "roughdielectric"];
+
+/// Parameters of the `roughdielectric` plugin (any other is an error).
+pub const ROUGHDIELECTRIC_PARAMS: &[&str] =
+    &["distribution", "alpha", "int_ior", "ext_ior", "scattering", "shadowing"];
+
+/// Named refractive indices accepted for `int_ior` / `ext_ior` (Mitsuba's table).
+pub const NAMED_IORS: &[(&str, f64)] = &[
+    ("vacuum", 1.0),
+    ("helium", 1.00004),
+    ("hydrogen", 1.00013),
+    ("air", 1.000277),
+    ("carbon dioxide", 1.00045),
+    ("water", 1.333),
+    ("acetone", 1.36),
+    ("ethanol", 1.361),
+    ("carbon tetrachloride", 1.461),
+    ("glycerol", 1.4729),
+    ("benzene", 1.501),
+    ("silicone oil", 1.52045),
+    ("bromine", 1.661),
+    ("water ice", 1.31),
+    ("fused quartz", 1.458),
+    ("pyrex", 1.47),
+    ("acrylic glass", 1.49),
+    ("polypropylene", 1.49),
+    ("bk7", 1.5046),
+    ("sodium chloride", 1.544),
+    ("amber", 1.55),
+    ("pet", 1.575),
+    ("diamond", 2.419),
+];
+
+impl PluginParams {
+    /// A refractive index: a float > 0 or a name of [`NAMED_IORS`].
+    fn ior(&self, name: &str, default: f64) -> Result<f64> {
+        let v = match self.values.get(name) {
+            None => default,
+            Some(ParamValue::Float(v)) => *v,
+            Some(ParamValue::Str(s)) => {
+                NAMED_IORS.iter().find(|(n, _)| *n == s.as_str()).map(|p| p.1).ok_or_else(|| {
+                    Error::invalid(
+                        self.what(name),
+                        format!(
+                            "unknown material \"{s}\"; give a number or one of {}",
+                            NAMED_IORS.iter().map(|p| p.0).collect::<Vec<_>>().join(", ")
+                        ),
+                    )
+                })?
+            }
+            Some(other) => {
+                return Err(Error::invalid(
+                    self.what(name),
+                    format!("must be a float or a name, got {other:?}"),
+                ));
+            }
+        };
+        if !(v.is_finite() && v > 0.0) {
+            return Err(Error::invalid(self.what(name), format!("must be finite and > 0, got {v}")));
+        }
+        Ok(v)
+    }
+
+    /// Method A's rough dielectric interface (`roughdielectric`).
+    fn rough_dielectric(&self) -> Result<Bxdfs> {
+        if let Some(k) = self.values.keys().find(|k| !ROUGHDIELECTRIC_PARAMS.contains(&k.as_str())) {
+            return Err(Error::invalid(
+                format!("bsdf '{}'", self.plugin),
+                format!("unknown parameter '{k}' (supported: {})", ROUGHDIELECTRIC_PARAMS.join(", ")),
+            ));
+        }
+        let alpha = self.float("alpha", Some(0.1))?;
+        if !(alpha > 0.0 && alpha <= 10.0) {
+            return Err(Error::invalid(self.what("alpha"), format!("must be in (0, 10], got {alpha}")));
+        }
+        let ndf = self.distribution(alpha, "beckmann")?;
+        let (int_ior, ext_ior) = (self.ior("int_ior", 1.5046)?, self.ior("ext_ior", 1.000277)?);
+        let eta = int_ior / ext_ior;
+        if (eta - 1.0).abs() < 1e-4 {
+            return Err(Error::invalid(
+                self.what("int_ior/ext_ior"),
+                format!(
+                    "int_ior {int_ior} / ext_ior {ext_ior} = {eta}: an index-matched interface is invisible"
+                ),
+            ));
+        }
+        let sc = self.string("scattering", "single")?;
+        let shadowing = self.shadowing()?;
+        Ok(match sc.as_str() {
+            "single" => Bxdfs::RoughDielectric(RoughDielectric::new(ndf, eta as f32, shadowing)?),
+            "multiple" => {
+                if shadowing != Shadowing::HeightCorrelated && self.values.contains_key("shadowing") {
+                    return Err(Error::invalid(
+                        self.what("shadowing"),
+                        "with scattering \"multiple\" the random walk's masking is height-correlated \
+                         by construction: give \"height_correlated\" or leave it out",
+                    ));
+                }
+                Bxdfs::RoughDielectricMs(RoughDielectricMs::new(ndf, eta as f32)?)
+            }
+            _ => {
+                return Err(Error::invalid(
+                    self.what("scattering"),
+                    format!("must be \"single\" or \"multiple\", got \"{sc}\""),
+                ));
+            }
+        })
+    }
+
+    /// `distribution` = `ggx` | `beckmann` at roughness `alpha`.
+    fn distribution(&self, alpha: f64, default: &str) -> Result<Ndfs> {
+        let dist = self.string("distribution", default)?;
+        Ok(match dist.as_str() {
+            "ggx" => Ndfs::Ggx(Ggx::new(alpha as f32)?),
+            "beckmann" => Ndfs::Beckmann(Beckmann::new(alpha as f32)?),
+            _ => {
+                return Err(Error::invalid(
+                    self.what("distribution"),
+                    format!("must be \"ggx\" or \"beckmann\", got \"{dist}\""),
+                ));
+            }
+        })
+    }
+
+    /// `shadowing` = `separable` (default) | `height_correlated`.
+    fn shadowing(&self) -> Result<Shadowing> {
+        let sh = self.string("shadowing", "separable")?;
+        match sh.as_str() {
+            "separable" => Ok(Shadowing::Separable),
+            "height_correlated" => Ok(Shadowing::HeightCorrelated),
+            _ => Err(Error::invalid(
+                self.what("shadowing"),
+                format!("must be \"separable\" or \"height_correlated\", got \"{sh}\""),
+            )),
+        }
+    }
+}
 
 /// Builds a model from a plugin description.
 pub fn build_plugin(p: &PluginParams) -> Result<Bxdfs> {
@@ -176,17 +313,7 @@ pub fn build_plugin(p: &PluginParams) -> Result<Bxdfs> {
             if !(alpha > 0.0 && alpha <= 10.0) {
                 return Err(Error::invalid(p.what("alpha"), format!("must be in (0, 10], got {alpha}")));
             }
-            let dist = p.string("distribution", "ggx")?;
-            let ndf = match dist.as_str() {
-                "ggx" => Ndfs::Ggx(Ggx::new(alpha as f32)?),
-                "beckmann" => Ndfs::Beckmann(Beckmann::new(alpha as f32)?),
-                _ => {
-                    return Err(Error::invalid(
-                        p.what("distribution"),
-                        format!("must be \"ggx\" or \"beckmann\", got \"{dist}\""),
-                    ));
-                }
-            };
+            let ndf = p.distribution(alpha, "ggx")?;
             let fresnel = match (p.values.contains_key("eta"), p.values.contains_key("k")) {
                 (false, false) => ConductorFresnel::Mirror,
                 (true, true) => ConductorFresnel::Complex {
@@ -200,23 +327,14 @@ pub fn build_plugin(p: &PluginParams) -> Result<Bxdfs> {
                     ));
                 }
             };
-            let sh = p.string("shadowing", "separable")?;
-            let shadowing = match sh.as_str() {
-                "separable" => Shadowing::Separable,
-                "height_correlated" => Shadowing::HeightCorrelated,
-                _ => {
-                    return Err(Error::invalid(
-                        p.what("shadowing"),
-                        format!("must be \"separable\" or \"height_correlated\", got \"{sh}\""),
-                    ));
-                }
-            };
+            let shadowing = p.shadowing()?;
             Bxdfs::RoughConductor(RoughConductor::new(ndf, fresnel, ks()?, shadowing))
         }
+        "roughdielectric" => p.rough_dielectric()?,
         other => {
             return Err(Error::invalid(
                 format!("bsdf type '{other}'"),
-                format!("unknown; method-B plugins are {}", PLUGINS.join(", ")),
+                format!("unknown; plugins are {}", PLUGINS.join(", ")),
             ));
         }
     })

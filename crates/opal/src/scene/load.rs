@@ -57,6 +57,7 @@ pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
             "microfacet_conductor",
             "dielectric",
             "tabulated",
+            "roughdielectric",
         ],
     ),
     ("texture", &["bitmap"]),
@@ -971,9 +972,12 @@ impl Loader {
                 let Some((Object::Bsdf(b), _)) = inner.into_iter().next() else { unreachable!() };
                 Object::Bsdf(BsdfDesc::TwoSided(Box::new(b)))
             }
-            ("bsdf", "phong" | "blinn" | "schlick" | "lyon" | "pow16" | "microfacet_conductor") => {
-                use crate::bsdf::registry::{ParamValue, PluginParams, build_plugin};
-                const KNOWN: &[&str] = &[
+            (
+                "bsdf",
+                "phong" | "blinn" | "schlick" | "lyon" | "pow16" | "microfacet_conductor" | "roughdielectric",
+            ) => {
+                use crate::bsdf::registry::{ParamValue, PluginParams, ROUGHDIELECTRIC_PARAMS, build_plugin};
+                const LOBE: &[&str] = &[
                     "specular_reflectance",
                     "exponent",
                     "normalisation",
@@ -987,14 +991,15 @@ impl Loader {
                     "k",
                     "shadowing",
                 ];
+                let known = if ty == "roughdielectric" { ROUGHDIELECTRIC_PARAMS } else { LOBE };
                 let mut pp = PluginParams::new(&ty);
                 for q in std::mem::take(&mut p.params) {
-                    if !KNOWN.contains(&q.name.as_str()) {
+                    if !known.contains(&q.name.as_str()) {
                         return Err(q.loc.err(format!(
                             "{}: unknown parameter `{}` (supported: {})",
                             e.describe(),
                             q.name,
-                            KNOWN.join(", ")
+                            known.join(", ")
                         )));
                     }
                     let v = match &q.val {
@@ -1013,7 +1018,7 @@ impl Loader {
                     };
                     pp.values.insert(q.name.clone(), v);
                 }
-                p.finish("the method-B lobe parameters")?;
+                p.finish(&known.join(", "))?;
                 let b = build_plugin(&pp).map_err(|err| e.loc.err(format!("{}: {err}", e.describe())))?;
                 Object::Bsdf(BsdfDesc::Lobe(b))
             }

@@ -205,6 +205,19 @@ pub(crate) mod tests {
     /// sub-cells per axis keep its error (measured: 3·10⁻⁴ of the total at 16, 10⁻⁶ at 64 for
     /// GGX α = 0.35 at θo = 1.3) below the Monte-Carlo noise of 3·10⁵ samples.
     pub fn check_ndf(name: &str, ndf: &(impl Ndf + Sync), furnace_tol: f64, chi2_angles: &[f32]) {
+        check_ndf_breaks(name, ndf, furnace_tol, chi2_angles, &[]);
+    }
+
+    /// [`check_ndf`] for NDFs with kinks or jumps at the polar angles `theta_breaks` (table
+    /// nodes, a shifted peak): the χ² quadrature splits its cells at `cos θ` of each, see
+    /// [`Chi2Test::z_breaks`].
+    pub fn check_ndf_breaks(
+        name: &str,
+        ndf: &(impl Ndf + Sync),
+        furnace_tol: f64,
+        chi2_angles: &[f32],
+        theta_breaks: &[f64],
+    ) {
         let norm = hemi(|w| ndf.d(w.as_vec3()) as f64 * w.z);
         // quadrature error of the banded Gauss rule is < 1e-4 for the lobes tested (α ≥ 0.1)
         assert!((norm - 1.0).abs() < 2e-3, "{name}: ∫D cos = {norm}");
@@ -235,6 +248,7 @@ pub(crate) mod tests {
                 t.num_tests = 2 * chi2_angles.len() as u32;
                 t.seed = 7 + tests;
                 t.quad_subdiv = if theta_o > 1.2 || theta_o == 0.0 { 48 } else { 16 };
+                t.z_breaks = theta_breaks.iter().map(|t| t.cos()).collect();
                 tests += 1;
                 let r = t.run(&SphereFn {
                     sample: &|u| Some(ndf.sample_visible(wo, u)),
