@@ -30,8 +30,9 @@
 //! random numbers when a fit changes the face); photons are processed in fixed batches of
 //! [`BATCH`]; each batch fills its own f64 accumulator and batches are
 //! merged in index order, so the result is identical for any number of threads (tested). The
-//! photon loop allocates nothing; a fitting workflow can call [`Gonio::run_plate`] many times
-//! with the same seed (common random numbers) and a different rough face.
+//! photon loops allocate only per batch (accumulators, the wavefront scratch); a fitting
+//! workflow can call [`Gonio::run_plate`] many times with the same seed (common random numbers)
+//! and a different rough face.
 //!
 //! Two photon loops: `fast` (infinite plate, polished faces and single-scattering GGX or
 //! Beckmann faces: f32 fast math, NDF resolved once, see `gonio/fast.rs`) and the general
