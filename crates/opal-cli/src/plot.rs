@@ -108,6 +108,25 @@ impl LinePlot {
     }
 }
 
+/// Short axis tick text: up to 4 significant digits, trailing zeros dropped, scientific
+/// notation (`1e-5`, `2.5e4`) outside [10⁻³, 10⁴).
+fn tick_label(v: f64) -> String {
+    fn trim(s: &str) -> &str {
+        if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.') } else { s }
+    }
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    if (1e-3..1e4).contains(&v.abs()) {
+        let digits = (3 - v.abs().log10().floor() as i32).clamp(0, 6) as usize;
+        trim(&format!("{v:.digits$}")).to_string()
+    } else {
+        let s = format!("{v:.3e}");
+        let (m, e) = s.split_once('e').unwrap_or((&s, "0"));
+        format!("{}e{}", trim(m), e)
+    }
+}
+
 fn draw_panel<DB: DrawingBackend, Y>(
     area: &DrawingArea<DB, Shift>,
     p: &LinePlot,
@@ -130,6 +149,7 @@ where
         .configure_mesh()
         .x_desc(&p.x_label)
         .y_desc(&p.y_label)
+        .y_label_formatter(&|v: &f64| tick_label(*v))
         .label_style(("sans-serif", 12))
         .draw()
         .map_err(|e| anyhow!("plot: {e}"))?;
@@ -301,5 +321,22 @@ mod tests {
         assert!(img.to_rgb8().pixels().any(|px| px.0 != [255, 255, 255]));
         assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
         assert!(p.save(&dir.path().join("a.txt"), (10, 10)).is_err());
+    }
+}
+
+#[cfg(test)]
+mod tick_tests {
+    use super::tick_label;
+
+    #[test]
+    fn tick_labels_are_short() {
+        assert_eq!(tick_label(9.999999999999999e-5), "1e-4");
+        assert_eq!(tick_label(1e-7), "1e-7");
+        assert_eq!(tick_label(0.01), "0.01");
+        assert_eq!(tick_label(0.25), "0.25");
+        assert_eq!(tick_label(10.0), "10");
+        assert_eq!(tick_label(-80.0), "-80");
+        assert_eq!(tick_label(2.5e4), "2.5e4");
+        assert_eq!(tick_label(0.0), "0");
     }
 }
