@@ -315,47 +315,84 @@ pub fn superres_luminance(
             diag_a[amat.col[k] as usize] += amat.val[k] * amat.val[k];
         }
     }
+    // TV edges as per-texel adjacency (neighbour, edge index): the operator is then a gather,
+    // parallel over texels and independent of the thread count
+    let mut adj_ptr = vec![0usize; m + 1];
+    for e in &edges {
+        adj_ptr[e.0 as usize + 1] += 1;
+        adj_ptr[e.1 as usize + 1] += 1;
+    }
+    for j in 0..m {
+        adj_ptr[j + 1] += adj_ptr[j];
+    }
+    let mut fill = adj_ptr.clone();
+    let mut adj = vec![(0u32, 0u32); adj_ptr[m]];
+    for (k, e) in edges.iter().enumerate() {
+        adj[fill[e.0 as usize]] = (e.1, k as u32);
+        fill[e.0 as usize] += 1;
+        adj[fill[e.1 as usize]] = (e.0, k as u32);
+        fill[e.1 as usize] += 1;
+    }
+    // deterministic parallel dot products: fixed chunks, partial sums added in order
+    const CHUNK: usize = 4096;
+    let dot = |a: &[[f32; 3]], b: &[[f32; 3]]| -> [f64; 3] {
+        let parts: Vec<[f64; 3]> = a
+            .par_chunks(CHUNK)
+            .zip(b.par_chunks(CHUNK))
+            .map(|(ca, cb)| {
+                let mut s = [0f64; 3];
+                for (u, v) in ca.iter().zip(cb) {
+                    for c in 0..3 {
+                        s[c] += u[c] as f64 * v[c] as f64;
+                    }
+                }
+                s
+            })
+            .collect();
+        parts.iter().fold([0f64; 3], |acc, p| std::array::from_fn(|c| acc[c] + p[c]))
+    };
     let mut ax = vec![[0f32; 3]; amat.rows()];
     let mut wts = vec![0f32; edges.len()];
+    let mut diag = vec![0f32; m];
     for _ in 0..s.irls.max(1) {
-        for (e, w) in edges.iter().zip(wts.iter_mut()) {
+        wts.par_iter_mut().zip(edges.par_iter()).with_min_len(1024).for_each(|(w, e)| {
             let (p, q) = (x[e.0 as usize], x[e.1 as usize]);
             let g = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
             *w = lambda / g.max(s.eps);
-        }
-        // operator M x = Aᵀ A x + Σ_e w_e (x_p − x_q)(e_p − e_q)
-        let mut diag = diag_a.clone();
-        for (e, &w) in edges.iter().zip(&wts) {
-            diag[e.0 as usize] += w;
-            diag[e.1 as usize] += w;
-        }
+        });
+        // operator M x = Aᵀ A x + Σ_e w_e (x_p − x_q)(e_p − e_q), Jacobi preconditioner diag(M)
+        diag.par_iter_mut().enumerate().with_min_len(1024).for_each(|(j, d)| {
+            *d = (diag_a[j]
+                + adj[adj_ptr[j]..adj_ptr[j + 1]].iter().map(|&(_, k)| wts[k as usize]).sum::<f32>())
+            .max(1e-12);
+        });
         let apply = |v: &[[f32; 3]], ax: &mut Vec<[f32; 3]>, out: &mut Vec<[f32; 3]>| {
             amat.mul(v, ax);
-            at.mul(ax, out);
-            for (e, &w) in edges.iter().zip(&wts) {
-                let (p, q) = (e.0 as usize, e.1 as usize);
-                for c in 0..3 {
-                    let d = w * (v[p][c] - v[q][c]);
-                    out[p][c] += d;
-                    out[q][c] -= d;
+            let ax = &*ax;
+            out.par_iter_mut().enumerate().with_min_len(256).for_each(|(j, o)| {
+                let mut acc = [0f32; 3];
+                for k in at.ptr[j]..at.ptr[j + 1] {
+                    let (val, r) = (at.val[k], ax[at.col[k] as usize]);
+                    for c in 0..3 {
+                        acc[c] += val * r[c];
+                    }
                 }
-            }
+                let vj = v[j];
+                for &(q, e) in &adj[adj_ptr[j]..adj_ptr[j + 1]] {
+                    let (w, vq) = (wts[e as usize], v[q as usize]);
+                    for c in 0..3 {
+                        acc[c] += w * (vj[c] - vq[c]);
+                    }
+                }
+                *o = acc;
+            });
         };
-        // preconditioned CG, per channel dot products
+        // preconditioned CG, per-channel step sizes
         let mut mx = vec![[0f32; 3]; m];
         apply(&x, &mut ax, &mut mx);
         let mut r: Vec<[f32; 3]> = (0..m).map(|j| std::array::from_fn(|c| aty[j][c] - mx[j][c])).collect();
-        let mut z: Vec<[f32; 3]> = (0..m).map(|j| r[j].map(|v| v / diag[j].max(1e-12))).collect();
+        let mut z: Vec<[f32; 3]> = (0..m).map(|j| r[j].map(|v| v / diag[j])).collect();
         let mut p = z.clone();
-        let dot = |a: &[[f32; 3]], b: &[[f32; 3]]| -> [f64; 3] {
-            let mut s = [0f64; 3];
-            for (u, v) in a.iter().zip(b) {
-                for c in 0..3 {
-                    s[c] += u[c] as f64 * v[c] as f64;
-                }
-            }
-            s
-        };
         let mut rz = dot(&r, &z);
         let mut mp = vec![[0f32; 3]; m];
         for _ in 0..s.cg_iters {
@@ -363,22 +400,27 @@ pub fn superres_luminance(
             let pmp = dot(&p, &mp);
             let alpha: [f32; 3] =
                 std::array::from_fn(|c| if pmp[c] > 0.0 { (rz[c] / pmp[c]) as f32 } else { 0.0 });
-            for j in 0..m {
-                for c in 0..3 {
-                    x[j][c] += alpha[c] * p[j][c];
-                    r[j][c] -= alpha[c] * mp[j][c];
-                    z[j][c] = r[j][c] / diag[j].max(1e-12);
-                }
-            }
+            x.par_iter_mut()
+                .zip(r.par_iter_mut())
+                .zip(z.par_iter_mut())
+                .enumerate()
+                .with_min_len(1024)
+                .for_each(|(j, ((xj, rj), zj))| {
+                    for c in 0..3 {
+                        xj[c] += alpha[c] * p[j][c];
+                        rj[c] -= alpha[c] * mp[j][c];
+                        zj[c] = rj[c] / diag[j];
+                    }
+                });
             let rz_new = dot(&r, &z);
             let beta: [f32; 3] =
                 std::array::from_fn(|c| if rz[c] > 0.0 { (rz_new[c] / rz[c]) as f32 } else { 0.0 });
             rz = rz_new;
-            for j in 0..m {
+            p.par_iter_mut().zip(z.par_iter()).with_min_len(1024).for_each(|(pj, zj)| {
                 for c in 0..3 {
-                    p[j][c] = z[j][c] + beta[c] * p[j][c];
+                    pj[c] = zj[c] + beta[c] * pj[c];
                 }
-            }
+            });
         }
     }
     // texels no pure pixel covers keep the back-projected value
