@@ -114,8 +114,9 @@ pub enum BsdfDesc {
     },
     /// Mitsuba `twosided`: the same BSDF on both sides.
     TwoSided(Box<BsdfDesc>),
-    /// A method-B lobe plugin (`phong`, `blinn`, `schlick`, `lyon`, `pow16`,
-    /// `microfacet_conductor`), already built by `opal::bsdf::registry::build_plugin`.
+    /// A plugin built by `opal::bsdf::registry::build_plugin`: a method-B lobe (`phong`,
+    /// `blinn`, `schlick`, `lyon`, `pow16`, `microfacet_conductor`) or method A's
+    /// `roughdielectric` (single or multiple scattering).
     Lobe(crate::bsdf::Bxdfs),
 }
 
