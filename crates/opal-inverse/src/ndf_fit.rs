@@ -301,7 +301,8 @@ pub struct FitSetup {
     pub fit_on: FitOn,
     /// Points below this fraction of their curve's maximum are left out of the objective.
     pub floor_rel: f64,
-    /// Maximum number of optimiser iterations per family and stage.
+    /// Maximum number of optimiser iterations per family and stage (Nelder–Mead: per free
+    /// coordinate).
     pub max_iters: u64,
     /// Photons per incidence of the coarse stage (`None`: one stage at `photons`). The coarse
     /// stage optimises from the initial guess; the fine stage (at `photons`) restarts from its
@@ -940,8 +941,11 @@ impl Problem {
         let solver = NelderMead::new(simplex)
             .with_sd_tolerance(sd_tol.max(0.0))
             .map_err(|e| opal::Error::invalid("optimiser", e.to_string()))?;
+        // the iteration budget is per free coordinate: Nelder–Mead needs more steps in more
+        // dimensions (a 3-coordinate hybrid hit a flat 40-step cap before its tolerance)
+        let iters = self.setup.max_iters.saturating_mul(coords.len().max(1) as u64);
         let res = Executor::new(cost, solver)
-            .configure(|s| s.max_iters(self.setup.max_iters))
+            .configure(|s| s.max_iters(iters))
             .run()
             .map_err(|e| opal::Error::invalid("optimiser", e.to_string()))?;
         let st = res.state();

@@ -74,7 +74,8 @@ pub struct FitNdfArgs {
     /// Angular radius of the detectors (degrees).
     #[arg(long)]
     pub detector_radius_deg: Option<f64>,
-    /// Maximum optimiser iterations per family (fewer → the fit may not converge: exit 1).
+    /// Maximum optimiser iterations per family and free parameter (Nelder–Mead over k
+    /// parameters gets k × this; fewer → the fit may not converge: exit 1).
     #[arg(long, default_value_t = 40)]
     pub max_iters: u64,
     /// Points below this fraction of their curve's maximum are left out of the objective.
