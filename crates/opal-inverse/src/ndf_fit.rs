@@ -373,14 +373,10 @@ pub struct Evaluation {
 /// Result of fitting one model.
 #[derive(Clone, Debug)]
 pub struct FamilyFit {
-    /// The family (of `model`).
-    pub family: Family,
-    /// The fitted model (every parameter).
+    /// The fitted model (every parameter; `model.family`, `model.alpha`).
     pub model: Model,
     /// Initial α (from the lobe width, or from the fit this one started from).
     pub alpha_initial: f64,
-    /// Fitted α (= `model.alpha`).
-    pub alpha: f64,
     /// Objective at the optimum (fine stage; common random numbers;
     /// Σ((s − m)² − σs²)/m / Σm).
     pub objective: f64,
@@ -858,9 +854,7 @@ impl Problem {
             converged &= ok;
         }
         Ok(FamilyFit {
-            family,
             alpha_initial: a0,
-            alpha: model.alpha,
             model,
             objective,
             evaluations: self.evaluations() - e0,
@@ -1019,9 +1013,7 @@ impl Problem {
             converged &= ok;
         }
         Ok(FamilyFit {
-            family: model.family,
             alpha_initial: start.alpha,
-            alpha: model.alpha,
             model,
             objective,
             evaluations: self.evaluations() - e0,
@@ -1234,7 +1226,7 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
     let converged = cands
         .iter()
         .enumerate()
-        .all(|(i, c)| c.fit.converged || (i != best && c.fit.family == Family::Hybrid));
+        .all(|(i, c)| c.fit.converged || (i != best && c.fit.model.family == Family::Hybrid));
     Ok(FitReport {
         candidates: cands,
         best,

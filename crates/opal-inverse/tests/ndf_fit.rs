@@ -84,7 +84,7 @@ fn run_case(name: &str, family: Family, alpha: f64, photons: u64) {
     let problem = Problem::new(reference(name), setup(rough_front, photons)).unwrap();
     let r = fit(&problem, &FitOptions::default()).unwrap();
     show(name, &problem, &r, t0);
-    let best = &r.best().fit;
+    let best = &r.best().fit.model;
     let ev = &r.best().check;
     eprintln!(
         "{name}: RESULT family {} α {:.4} (error {:+.2} %) rms/noise {:.3}",
@@ -167,7 +167,7 @@ fn round_trip_multiple_scattering() {
     let problem = Problem::new(m, s).unwrap();
     let r = fit(&problem, &FitOptions::default()).unwrap();
     show("multiple", &problem, &r, t0);
-    let best = &r.best().fit;
+    let best = &r.best().fit.model;
     assert_eq!(best.family, Family::Ggx);
     assert!((best.alpha / 0.4 - 1.0).abs() < 0.03, "α {}", best.alpha);
     assert!(r.best().check.rms <= 1.5 * r.best().check.noise);

@@ -146,11 +146,7 @@ fn same_image_for_any_thread_count() {
 /// with the η² correction.
 #[test]
 fn furnace_with_glass_sphere() {
-    let mut sphere = opal::scene::load::sphere_mesh(24, 12);
-    sphere.normals.clear(); // faceted: shading normal = geometric normal
-    for p in &mut sphere.positions {
-        *p = *p * 0.5 + Vec3::new(0.0, 0.0, 0.3);
-    }
+    let sphere = glass_test_sphere();
     // a small glass cube behind the sphere (outward normals: reverse the inward cube)
     let mut cube = inward_cube();
     for t in &mut cube.indices {
@@ -165,9 +161,7 @@ fn furnace_with_glass_sphere() {
     for (id, mesh) in [("glass_sphere", sphere), ("glass_cube", cube)] {
         desc.shapes.push(ShapeDesc { id: id.into(), mesh, bsdf: glass.clone(), emitter: None, origin: None });
     }
-    // camera on −z looking at the sphere (+z)
-    desc.sensors[0].to_world = Mat4::from_translation(Vec3::new(0.0, 0.0, -0.9));
-    desc.sensors[0].fov_x_deg = 60.0;
+    look_at_sphere(&mut desc);
     let scene = Scene::build(&desc).unwrap();
     let s = PathSettings { spp: 256, max_depth: -1, rr_depth: 3, hide_emitters: false, seed: 21 };
     let out = render(&scene, 0, &s, &|| {});
@@ -184,6 +178,23 @@ fn furnace_with_glass_sphere() {
     assert!(bad * 100 <= out.image.data.len(), "{bad} pixels off");
 }
 
+/// Faceted sphere (radius 0.5, centre (0, 0, 0.3), outward normals, shading normal =
+/// geometric normal) placed in the furnace by the glass tests.
+fn glass_test_sphere() -> opal::geometry::TriangleMesh {
+    let mut sphere = opal::scene::load::sphere_mesh(24, 12);
+    sphere.normals.clear();
+    for p in &mut sphere.positions {
+        *p = *p * 0.5 + Vec3::new(0.0, 0.0, 0.3);
+    }
+    sphere
+}
+
+/// The furnace camera on −z looking at [`glass_test_sphere`] (+z), 60° field of view.
+fn look_at_sphere(desc: &mut opal::scene::desc::SceneDesc) {
+    desc.sensors[0].to_world = Mat4::from_translation(Vec3::new(0.0, 0.0, -0.9));
+    desc.sensors[0].fov_x_deg = 60.0;
+}
+
 /// The closed furnace (ρ = 0.5, Le = 1) with a faceted sphere of *rough* glass (GGX α = 0.5,
 /// η = 1.5) using the multiple-scattering interface ([`opal::bsdf::RoughDielectricMs`]): a
 /// lossless interface that keeps energy leaves the furnace radiance unchanged, through the path
@@ -194,11 +205,7 @@ fn furnace_with_glass_sphere() {
 /// adds that 0.5 % per sphere interaction as a bias allowance to 4σ.
 #[test]
 fn furnace_with_rough_glass_sphere_multiple_scattering() {
-    let mut sphere = opal::scene::load::sphere_mesh(24, 12);
-    sphere.normals.clear();
-    for p in &mut sphere.positions {
-        *p = *p * 0.5 + Vec3::new(0.0, 0.0, 0.3);
-    }
+    let sphere = glass_test_sphere();
     let ms = opal::bsdf::RoughDielectricMs::new(opal::bsdf::microfacet::Ndfs::ggx(0.5), 1.5).unwrap();
     let mut desc = furnace_scene(0.5, 1.0);
     desc.shapes.push(ShapeDesc {
@@ -208,8 +215,7 @@ fn furnace_with_rough_glass_sphere_multiple_scattering() {
         emitter: None,
         origin: None,
     });
-    desc.sensors[0].to_world = Mat4::from_translation(Vec3::new(0.0, 0.0, -0.9));
-    desc.sensors[0].fov_x_deg = 60.0;
+    look_at_sphere(&mut desc);
     let scene = Scene::build(&desc).unwrap();
     let s = PathSettings { spp: 1024, max_depth: -1, rr_depth: 3, hide_emitters: false, seed: 23 };
     let out = render(&scene, 0, &s, &|| {});

@@ -360,8 +360,7 @@ fn write_outputs(
                     .enumerate()
                     .filter(|&(_, &b)| b)
                     .map(|(k, _)| {
-                        let e = ro.stderr.data[k];
-                        let s = 0.2126 * e[0] as f64 + 0.7152 * e[1] as f64 + 0.0722 * e[2] as f64;
+                        let s = opal_inverse::delight::luminance(ro.stderr.data[k].0) as f64;
                         s * s
                     })
                     .sum();

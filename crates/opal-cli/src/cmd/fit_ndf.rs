@@ -186,7 +186,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
 fn candidate_json(c: &Candidate) -> serde_json::Value {
     let f = &c.fit;
     serde_json::json!({
-        "family": f.family.name(), "model": f.model.describe(), "alpha": f.alpha,
+        "family": f.model.family.name(), "model": f.model.describe(), "alpha": f.model.alpha,
         "params": f.model.params_json(), "parameter_count": f.model.parameter_count(),
         "alpha_initial": f.alpha_initial, "objective": f.objective,
         "check_rms": c.check.rms, "check_noise": c.check.noise, "check_chi2": c.check.chi2,
@@ -245,7 +245,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     let init = problem.evaluate(
         problem
             .simulate(
-                Model::new(first.family, first.alpha_initial).ndf().map_err(|e| anyhow!("{e}"))?,
+                Model::new(first.model.family, first.alpha_initial).ndf().map_err(|e| anyhow!("{e}"))?,
                 check_seed,
                 s.photons,
             )
@@ -301,8 +301,8 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         s.plate.ior,
         s.scattering,
         (
-            &best.family.ndf(best.alpha_initial),
-            &format!("{} α={:.4}", best.family.name(), best.alpha_initial),
+            &best.model.family.ndf(best.alpha_initial),
+            &format!("{} α={:.4}", best.model.family.name(), best.alpha_initial),
         ),
         (&ndf, &best.model.describe()),
         a.no_render,
@@ -328,8 +328,8 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         })
         .collect();
     let json = serde_json::json!({
-        "family": best.family.name(),
-        "alpha": best.alpha,
+        "family": best.model.family.name(),
+        "alpha": best.model.alpha,
         "model": best.model.describe(),
         "params": best.model.params_json(),
         "shift": a.shift,

@@ -70,6 +70,38 @@ pub struct DirSample {
     pub transmitted: bool,
 }
 
+/// Generalised half vector `normalize(η'·wi + wo)` oriented to +z for an interface of relative
+/// index `eta` (inside = −z), η' (1 for reflection) and whether the pair is a reflection;
+/// `None` for grazing, degenerate or back-facing configurations. Shared by every rough
+/// dielectric model ([`RoughDielectric`], the tabulated face).
+#[inline]
+pub(crate) fn half_vector(wo: Vec3, wi: Vec3, eta: f32) -> Option<(Vec3, f32, bool)> {
+    if wo.z == 0.0 || wi.z == 0.0 {
+        return None;
+    }
+    let reflect = wo.z * wi.z > 0.0;
+    let etap = if reflect {
+        1.0
+    } else if wo.z > 0.0 {
+        eta
+    } else {
+        1.0 / eta
+    };
+    let mut wm = wi * etap + wo;
+    let l2 = wm.length_squared();
+    if l2 == 0.0 || !l2.is_finite() {
+        return None;
+    }
+    wm /= l2.sqrt();
+    if wm.z < 0.0 {
+        wm = -wm;
+    }
+    if wm.dot(wo) * wo.z <= 0.0 || wm.dot(wi) * wi.z <= 0.0 {
+        return None;
+    }
+    Some((wm, etap, reflect))
+}
+
 impl RoughDielectric {
     /// New interface; error unless `eta` is finite, > 0 and ≠ 1 (an index-matched rough
     /// interface is invisible: use no interface at all).
@@ -89,34 +121,10 @@ impl RoughDielectric {
         }
     }
 
-    /// Generalised half vector (oriented to +z), η' and whether it is a reflection;
-    /// `None` for degenerate or back-facing configurations.
+    /// Generalised half vector of this interface: see [`half_vector`].
     #[inline]
     fn half_vector(&self, wo: Vec3, wi: Vec3) -> Option<(Vec3, f32, bool)> {
-        if wo.z == 0.0 || wi.z == 0.0 {
-            return None;
-        }
-        let reflect = wo.z * wi.z > 0.0;
-        let etap = if reflect {
-            1.0
-        } else if wo.z > 0.0 {
-            self.eta
-        } else {
-            1.0 / self.eta
-        };
-        let mut wm = wi * etap + wo;
-        let l2 = wm.length_squared();
-        if l2 == 0.0 || !l2.is_finite() {
-            return None;
-        }
-        wm /= l2.sqrt();
-        if wm.z < 0.0 {
-            wm = -wm;
-        }
-        if wm.dot(wo) * wo.z <= 0.0 || wm.dot(wi) * wi.z <= 0.0 {
-            return None;
-        }
-        Some((wm, etap, reflect))
+        half_vector(wo, wi, self.eta)
     }
 
     /// Draws a new direction and its weight without evaluating f and pdf separately.

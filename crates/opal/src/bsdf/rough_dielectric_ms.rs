@@ -173,6 +173,13 @@ impl RoughDielectricMs {
         if w.z >= 0.0 { l } else { -1.0 - l }
     }
 
+    /// [`Self::sample_height`] for a ray on either side: below the surface the mirrored
+    /// micro-surface (negated direction and height) is the same random surface.
+    #[inline]
+    fn sample_height_on_side(&self, wr: Vec3, hr: f32, outside: bool, u: f32) -> Option<f32> {
+        if outside { self.sample_height(wr, hr, u) } else { self.sample_height(-wr, -hr, u).map(|h| -h) }
+    }
+
     /// Next intersection height of a ray travelling along `wr` from height `hr` (above the
     /// micro-surface); `None` when it escapes.
     #[inline]
@@ -238,11 +245,7 @@ impl RoughDielectricMs {
         let mut order = 0;
         loop {
             let u = rng.next_f32();
-            let h = if outside {
-                self.sample_height(wr, hr, u)
-            } else {
-                self.sample_height(-wr, -hr, u).map(|h| -h)
-            };
+            let h = self.sample_height_on_side(wr, hr, outside, u);
             let Some(h) = h else { break };
             hr = h;
             order += 1;
@@ -388,11 +391,7 @@ impl RoughDielectricMs {
             }
             // the walk itself
             let u = rng.next_f32();
-            let h = if outside {
-                self.sample_height(wr, hr, u)
-            } else {
-                self.sample_height(-wr, -hr, u).map(|h| -h)
-            };
+            let h = self.sample_height_on_side(wr, hr, outside, u);
             let Some(h) = h else { break };
             hr = h;
             order += 1;

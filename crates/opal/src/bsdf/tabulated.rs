@@ -145,12 +145,6 @@ pub struct TabulatedBsdf {
     t: Arc<Table>,
 }
 
-/// η' = n(wi side)/n(wo side) for a transmission from the side of `wo`.
-#[inline]
-fn etap_of(wo_z: f32, eta: f32) -> f32 {
-    if wo_z > 0.0 { eta } else { 1.0 / eta }
-}
-
 /// Outgoing direction for micro-normal `wm` (z > 0) and lobe; `None` when invalid.
 #[inline]
 fn wi_from_wm(wo: Vec3, wm: Vec3, transmit: bool, eta: f32) -> Option<Vec3> {
@@ -181,24 +175,7 @@ fn wi_from_wm(wo: Vec3, wm: Vec3, transmit: bool, eta: f32) -> Option<Vec3> {
 /// Generalised half vector (z > 0), η' (1 for reflection), and whether it is a transmission.
 #[inline]
 fn half_vector(wo: Vec3, wi: Vec3, eta: f32) -> Option<(Vec3, f32, bool)> {
-    if wo.z == 0.0 || wi.z == 0.0 {
-        return None;
-    }
-    let transmit = wo.z * wi.z < 0.0;
-    let etap = if transmit { etap_of(wo.z, eta) } else { 1.0 };
-    let mut wm = wi * etap + wo;
-    let l2 = wm.length_squared();
-    if l2 == 0.0 || !l2.is_finite() {
-        return None;
-    }
-    wm /= l2.sqrt();
-    if wm.z < 0.0 {
-        wm = -wm;
-    }
-    if wm.dot(wo) * wo.z <= 0.0 || wm.dot(wi) * wi.z <= 0.0 {
-        return None;
-    }
-    Some((wm, etap, transmit))
+    super::rough_dielectric::half_vector(wo, wi, eta).map(|(wm, etap, reflect)| (wm, etap, !reflect))
 }
 
 /// |dωm/dωi| for the pair.

@@ -261,23 +261,22 @@ impl Detectors {
         self.hemisphere
     }
 
+    /// Direction in which the detectors see a photon leaving `p` along `d`: `d` itself in the far
+    /// field, else the direction from the plate centre to where the photon crosses the detector
+    /// sphere (`None` if it never does).
+    #[inline]
+    fn seen_direction(&self, d: Vec3, p: Vec3) -> Option<Vec3> {
+        let Some(dist) = self.distance else { return Some(d) };
+        let b = p.dot(d);
+        let disc = b * b - (p.length_squared() - dist * dist);
+        (disc >= 0.0).then(|| (p + d * (-b + disc.sqrt())).normalize())
+    }
+
     /// Calls `f(i)` for every detector `i` of `side` that counts a photon leaving point `p`
     /// (plate frame, mm; ignored in the far field) in direction `d`.
     #[inline]
     pub fn for_each_hit(&self, side: Side, d: Vec3, p: Vec3, mut f: impl FnMut(usize)) {
-        let q = match self.distance {
-            None => d,
-            Some(dist) => {
-                let b = p.dot(d);
-                let c = p.length_squared() - dist * dist;
-                let disc = b * b - c;
-                if disc < 0.0 {
-                    return;
-                }
-                let t = -b + disc.sqrt();
-                (p + d * t).normalize()
-            }
-        };
+        let Some(q) = self.seen_direction(d, p) else { return };
         let nf = self.n as f32;
         let ix = (((q.x + 1.0) * 0.5 * nf) as usize).min(self.n - 1);
         let iy = (((q.y + 1.0) * 0.5 * nf) as usize).min(self.n - 1);
@@ -298,18 +297,7 @@ impl Detectors {
 
     /// Brute-force version of [`Detectors::for_each_hit`] (every detector of `side`), for tests.
     pub fn for_each_hit_brute_force(&self, side: Side, d: Vec3, p: Vec3, mut f: impl FnMut(usize)) {
-        let q = match self.distance {
-            None => d,
-            Some(dist) => {
-                let b = p.dot(d);
-                let c = p.length_squared() - dist * dist;
-                let disc = b * b - c;
-                if disc < 0.0 {
-                    return;
-                }
-                (p + d * (-b + disc.sqrt())).normalize()
-            }
-        };
+        let Some(q) = self.seen_direction(d, p) else { return };
         for (k, det) in self.list.iter().enumerate() {
             if det.side == side && det.axis.dot(q) >= self.cos_r {
                 f(k);
