@@ -10,6 +10,10 @@
 //! References: Cody & Waite range reduction (exp, ln); M. Abramowitz and I. Stegun, *Handbook of
 //! Mathematical Functions*, 7.1.26 (erf); M. Giles, "Approximating the erfinv function", GPU
 //! Computing Gems Jade Edition, 2011 (erfinv).
+//!
+//! [`wide`]: the same functions on `N` lanes at once (SIMD), bit-identical to these.
+
+pub mod wide;
 
 /// Nearest integer (ties away from zero) for |x| < 2³¹, without a libm call (`f32::round` is
 /// one on x86-64 without SSE4.1).

@@ -221,6 +221,7 @@ pub struct Gonio {
     setup: GonioSetup,
     dets: Detectors,
     force_general: bool,
+    simd: bool,
 }
 
 #[derive(Clone)]
@@ -325,13 +326,21 @@ impl Gonio {
             return Err(crate::Error::invalid("photons", "must be > 0"));
         }
         let dets = Detectors::new(&setup.detectors, setup.beam.azimuth)?;
-        Ok(Gonio { setup, dets, force_general: false })
+        Ok(Gonio { setup, dets, force_general: false, simd: true })
     }
 
     /// Forces the general photon loop even where the fast one applies (for comparisons and
     /// benchmarks; the results agree in distribution, not bit for bit).
     pub fn with_general_loop(mut self, yes: bool) -> Self {
         self.force_general = yes;
+        self
+    }
+
+    /// `false` runs the fast photon loop with the portable kernels (the target's baseline
+    /// instruction set) instead of the widest SIMD version the CPU supports (AVX2 or AVX-512,
+    /// detected at run time). The results are identical bit for bit; for tests and benchmarks.
+    pub fn with_simd(mut self, yes: bool) -> Self {
+        self.simd = yes;
         self
     }
 
@@ -367,9 +376,10 @@ impl Gonio {
         let front = FaceModel::new(&plate.front, ior)?;
         let back = FaceModel::new(&plate.back, ior)?;
         let fast = if self.force_general { None } else { fast::FastPlate::new(plate) };
+        let kernels = fast::Kernels::detect(self.simd);
         let mut out = Vec::with_capacity(self.setup.incidences.len());
         for (ii, &inc) in self.setup.incidences.iter().enumerate() {
-            out.push(self.run_incidence(plate, &front, &back, fast.as_ref(), ii as u64, inc, tick));
+            out.push(self.run_incidence(plate, &front, &back, fast.as_ref(), kernels, ii as u64, inc, tick));
         }
         Ok(GonioResult { incidences: out, photons: self.setup.photons })
     }
@@ -381,6 +391,7 @@ impl Gonio {
         front: &FaceModel,
         back: &FaceModel,
         fast: Option<&fast::FastPlate>,
+        kernels: fast::Kernels,
         stream: u64,
         inc: f64,
         tick: &(dyn Fn() + Sync),
@@ -408,7 +419,7 @@ impl Gonio {
                         cos_div: self.setup.beam.divergence.cos() as f32,
                     };
                     if let Some(fp) = fast {
-                        self.trace_batch_fast(fp, &bf, stream, b * BATCH, count, &mut acc);
+                        self.trace_batch_fast(fp, &bf, stream, b * BATCH, count, &mut acc, kernels);
                     } else {
                         for k in 0..count {
                             // one stream per photon: a photon keeps its random numbers whatever

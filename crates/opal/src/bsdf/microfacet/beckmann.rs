@@ -79,17 +79,17 @@ pub fn erf_inv_fast(x: f64) -> f64 {
 }
 
 const INV_SQRT_PI: f64 = 0.564_189_583_547_756_3;
-const INV_SQRT_PI_F32: f32 = 0.564_189_6;
+pub(crate) const INV_SQRT_PI_F32: f32 = 0.564_189_6;
 
 /// Rows and columns of the visible-slope quantile table: rows in `w = tan θ/(1 + tan θ)` from
 /// 0 (normal incidence) to 1 (grazing), a variable in which the quantiles are smooth at both
 /// ends (cos θ is not: tan θ ~ √(2(1 − cos θ))); columns in u from 0 to 1.
-const TAB_NC: usize = 65;
-const TAB_NU: usize = 129;
+pub(crate) const TAB_NC: usize = 65;
+pub(crate) const TAB_NU: usize = 129;
 
 /// Quantile table `x(cos θ, u)` of the unit-roughness visible-slope marginal, built once in
 /// f64 by bisection on the exact CDF (~10 ms).
-fn slope_table() -> &'static [f32] {
+pub(crate) fn slope_table() -> &'static [f32] {
     static TABLE: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| {
         use statrs::function::erf::erfc;
