@@ -24,19 +24,26 @@
 //!   scalar pass over the round's photons in order.
 //!
 //! The SIMD kernels return, lane by lane, the same bits as the scalar interaction code
-//! (`rough_sample` with `Ndf::sample_visible`; the Beckmann lanes whose Newton step from the
-//! table start has not converged, and those at normal incidence, are redone by the scalar
-//! code), so the results do not depend on the vector width: the portable build (SSE2, `N` = 8 as
+//! (`rough_sample` with `Ndf::sample_visible`, kept for the tests): the Beckmann kernel takes
+//! the scalar sampler's first two Newton steps from the table start; the lanes not converged
+//! by then (the tails of u, ~1.8 % of them) and those at normal incidence are gathered after
+//! the round and redone in blocks by the kernel with the whole iteration. So the output is
+//! the one of the scalar fast loop before the kernels, and it does not depend on the vector
+//! width: the portable build (SSE2, `N` = 8 as
 //! 2 × 4 lanes) and the AVX2 (8 lanes) and AVX-512 (16 lanes) versions selected at run time give
 //! identical output (tested: `simd_kernels_match_scalar_code`,
 //! `gonio::tests::simd_and_portable_loops_agree_bit_for_bit`).
 
 use super::{Acc, BeamFrame, Face, Gonio, Plate, Scattering, Side};
+#[cfg(test)]
+use crate::bsdf::microfacet::Ndf;
 use crate::bsdf::microfacet::beckmann::{INV_SQRT_PI_F32, TAB_NC, TAB_NU, slope_table};
-use crate::bsdf::microfacet::{Beckmann, Ggx, Ndf, Ndfs};
+use crate::bsdf::microfacet::{Beckmann, Ggx, Ndfs};
 use crate::fastmath::Fresnel;
 use crate::fastmath::wide::{self, F, M};
-use crate::math::{Vec2, Vec3};
+#[cfg(test)]
+use crate::math::Vec2;
+use crate::math::Vec3;
 use crate::sampling::{Rng, RngStream};
 
 /// A face resolved for the fast loop.
@@ -92,7 +99,9 @@ impl FastPlate {
 
 /// Single-scattering rough interface in importance mode: visible normal, Fresnel choice,
 /// reflection or refraction, weight G1(wi). `None` = the sample is lost (wrong side).
-/// (The scalar definition of what the SIMD kernels compute.)
+/// (The scalar definition of what the SIMD kernels compute, as the fast loop ran it before
+/// the kernels; the tests compare the kernels with it.)
+#[cfg(test)]
 #[inline(always)]
 fn rough_sample(
     ndf: &impl Ndf,
@@ -126,7 +135,7 @@ fn rough_sample(
 /// The scalar interaction of a face with local outgoing direction `wo` and random numbers
 /// `u0` (the Fresnel choice) and `(u1, u2)` (the visible normal): new local direction and
 /// weight factor (0 = lost; 1 for a polished face).
-#[inline]
+#[cfg(test)]
 fn interact_scalar(face: &FastFace, fr: &Fresnel, wo: Vec3, u0: f32, u1: f32, u2: f32) -> (Vec3, f32) {
     let s = match face {
         FastFace::Polished => {
@@ -204,10 +213,20 @@ fn ggx_visible<const N: usize>(alpha: f32, wo: V3<N>, u1: F<N>, u2: F<N>) -> V3<
     V3 { x: alpha * h.x, y: alpha * h.y, z: h.z.max(F::splat(1e-7)) }.normalize()
 }
 
-/// Beckmann visible normal (`Beckmann::sample_visible` with `slopes_core`), lane by lane,
-/// taking the first two safeguarded Newton steps from the table start exactly as the scalar
-/// code does; the mask marks the lanes to redo with the scalar code (not converged after two
-/// steps, or normal incidence).
+/// Unnormalised CDF of the unit-roughness visible slope, `erfc(−x)/2 + tan θ e/(2√π)` with
+/// `e = exp(−x²)` (as `slopes_core` evaluates it).
+#[inline(always)]
+fn slope_cdf<const N: usize>(x: F<N>, e: F<N>, tan: F<N>) -> F<N> {
+    let er = wide::erfc_pos_with_exp(x.abs(), e);
+    let h = x.lt(F::splat(0.0)).select(0.5 * er, 1.0 - 0.5 * er);
+    h + 0.5 * tan * INV_SQRT_PI_F32 * e
+}
+
+/// Beckmann visible normal (`Beckmann::sample_visible` with `slopes_core`), lane by lane.
+/// `full = false`: the first two safeguarded Newton steps from the table start exactly as the
+/// scalar code takes them, and a mask of the lanes to redo with `full = true` (not converged
+/// after two steps, or normal incidence); `full = true`: every lane through the whole
+/// iteration as the scalar code runs it (the loop runs as long as one lane needs it).
 #[inline(always)]
 fn beckmann_visible<const N: usize>(
     alpha: f32,
@@ -215,6 +234,7 @@ fn beckmann_visible<const N: usize>(
     wo: V3<N>,
     u1: F<N>,
     u2: F<N>,
+    full: bool,
 ) -> (V3<N>, M<N>) {
     let zero = F::splat(0.0);
     let w = wo.neg_where(wo.z.lt(zero));
@@ -234,12 +254,7 @@ fn beckmann_visible<const N: usize>(
     let inv = 1.0 / (ta * z);
     let tan = ta * ta * inv;
     let cot = z * z * inv;
-    let cdf = |x: F<N>, e: F<N>| {
-        let er = wide::erfc_pos_with_exp(x.abs(), e);
-        let h = x.lt(zero).select(0.5 * er, 1.0 - 0.5 * er);
-        h + 0.5 * tan * INV_SQRT_PI_F32 * e
-    };
-    let target = cot.gt(F::splat(4.0)).select(u1, u1 * cdf(cot, wide::exp(-cot * cot)));
+    let target = cot.gt(F::splat(4.0)).select(u1, u1 * slope_cdf(cot, wide::exp(-cot * cot), tan));
     let fc = ta / (ta + z) * (TAB_NC - 1) as f32;
     let i = fc.to_i32().max(wide::I::splat(0)).min(wide::I::splat(TAB_NC as i32 - 2));
     let wc = fc - i.to_f32();
@@ -256,39 +271,68 @@ fn beckmann_visible<const N: usize>(
     }
     let (lo, hi) = (F::splat(-10.0), cot);
     let x = F(x).clamp(lo, hi);
-    // Newton step 1 (converged: done)
-    let e = wide::exp(-x * x);
-    let f = cdf(x, e) - target;
-    let pos = f.gt(zero);
-    let (lo, hi) = (pos.select(lo, x), pos.select(x, hi));
-    let dens = (1.0 - x * tan) * INV_SQRT_PI_F32 * e;
-    let dx = f / dens;
-    let conv1 = dx.abs().le(1e-4 * (1.0 + x.abs()));
-    let x1 = x - dx;
-    // else the safeguarded iterate (bisection if Newton leaves the bracket) and step 2
-    let x2 = (x1.gt(lo) & x1.lt(hi)).select(x1, 0.5 * (lo + hi));
-    let tight = (hi - lo).le(1e-6 * (1.0 + x2.abs()));
-    let e = wide::exp(-x2 * x2);
-    let f = cdf(x2, e) - target;
-    let dens = (1.0 - x2 * tan) * INV_SQRT_PI_F32 * e;
-    let dx = f / dens;
-    let conv2 = dx.abs().le(1e-4 * (1.0 + x2.abs()));
-    let x = conv1.select(x1, tight.select(x2, x2 - dx));
-    let redo = normal | !(conv1 | tight | conv2);
+    let (x, redo) = if full {
+        // the whole safeguarded iteration, lanes leaving it as the scalar loop breaks
+        let (mut lo, mut hi, mut x, mut res) = (lo, hi, x, x);
+        let mut active = !normal;
+        for _ in 0..12 {
+            if !active.any() {
+                break;
+            }
+            let e = wide::exp(-x * x);
+            let f = slope_cdf(x, e, tan) - target;
+            let pos = f.gt(zero);
+            (lo, hi) = (pos.select(lo, x), pos.select(x, hi));
+            let dens = (1.0 - x * tan) * INV_SQRT_PI_F32 * e;
+            let dx = f / dens;
+            let conv = active & dx.abs().le(1e-4 * (1.0 + x.abs()));
+            res = conv.select(x - dx, res);
+            active = active & !conv;
+            let xn = x - dx;
+            x = (xn.gt(lo) & xn.lt(hi)).select(xn, 0.5 * (lo + hi));
+            let tight = active & (hi - lo).le(1e-6 * (1.0 + x.abs()));
+            res = tight.select(x, res);
+            active = active & !tight;
+        }
+        let res = active.select(x, res);
+        (normal.select(wide::erfinv(2.0 * u1 - 1.0), res), M([0; N]))
+    } else {
+        // Newton step 1 (converged: done)
+        let e = wide::exp(-x * x);
+        let f = slope_cdf(x, e, tan) - target;
+        let pos = f.gt(zero);
+        let (lo, hi) = (pos.select(lo, x), pos.select(x, hi));
+        let dens = (1.0 - x * tan) * INV_SQRT_PI_F32 * e;
+        let dx = f / dens;
+        let conv1 = dx.abs().le(1e-4 * (1.0 + x.abs()));
+        let x1 = x - dx;
+        // else the safeguarded iterate (bisection if Newton leaves the bracket) and step 2
+        let x2 = (x1.gt(lo) & x1.lt(hi)).select(x1, 0.5 * (lo + hi));
+        let tight = (hi - lo).le(1e-6 * (1.0 + x2.abs()));
+        let e = wide::exp(-x2 * x2);
+        let f = slope_cdf(x2, e, tan) - target;
+        let dens = (1.0 - x2 * tan) * INV_SQRT_PI_F32 * e;
+        let dx = f / dens;
+        let conv2 = dx.abs().le(1e-4 * (1.0 + x2.abs()));
+        let x = conv1.select(x1, tight.select(x2, x2 - dx));
+        (x, normal | !(conv1 | tight | conv2))
+    };
     let (xr, yr) = (ca * x - sa * y, sa * x + ca * y);
     (V3 { x: -alpha * xr, y: -alpha * yr, z: F::splat(1.0) }.normalize(), redo)
+}
+
+/// Which Smith G1 a rough face uses (with its α).
+#[derive(Clone, Copy)]
+enum G1 {
+    Ggx(f32),
+    BeckmannMitsuba(f32),
+    Beckmann(f32),
 }
 
 /// `rough_sample` after the visible normal, lane by lane: new local direction and weight
 /// factor (0 = lost).
 #[inline(always)]
-fn rough_finish<const N: usize>(
-    fr: &Fresnel,
-    wo: V3<N>,
-    wm: V3<N>,
-    uc: F<N>,
-    g1: impl Fn(V3<N>, V3<N>) -> F<N>,
-) -> (V3<N>, F<N>) {
+fn rough_finish<const N: usize>(fr: &Fresnel, wo: V3<N>, wm: V3<N>, uc: F<N>, g1: G1) -> (V3<N>, F<N>) {
     let zero = F::splat(0.0);
     let cos_om = wo.dot(wm);
     let ok = (cos_om * wo.z).gt(zero);
@@ -303,7 +347,11 @@ fn rough_finish<const N: usize>(
     // lost unless a reflection stays on the side of wo and a refraction crosses
     let same_side = (wi.z * wo.z).gt(zero);
     let ok = ok & refl.eq(same_side) & !wi.z.eq(zero);
-    let g = g1(wi, wm);
+    let g = match g1 {
+        G1::Ggx(a) => ggx_g1(a, wi, wm),
+        G1::BeckmannMitsuba(a) => beckmann_g1_mitsuba(a, wi, wm),
+        G1::Beckmann(a) => beckmann_g1_exact(a, wi, wm),
+    };
     let ok = ok & g.gt(zero);
     (wi, ok.select(g, zero))
 }
@@ -347,7 +395,7 @@ fn beckmann_g1_exact<const N: usize>(alpha: f32, w: V3<N>, wm: V3<N>) -> F<N> {
 
 /// One block of `N` photons at a face: local outgoing direction from the world direction `d`,
 /// interaction, new world direction and weight factor (0 = lost, 1 for polished faces), and
-/// the lanes the scalar code must redo.
+/// the lanes to redo with `full` = true (Beckmann: see `beckmann_visible`).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn interact_block<const N: usize>(
@@ -359,6 +407,7 @@ fn interact_block<const N: usize>(
     u0: F<N>,
     u1: F<N>,
     u2: F<N>,
+    full: bool,
 ) -> (V3<N>, F<N>, M<N>) {
     let wo = V3 { x: -d.x, y: -d.y, z: -d.z }.flip_if_bottom(top);
     let none = M([0; N]);
@@ -375,16 +424,16 @@ fn interact_block<const N: usize>(
         FastFace::Ggx(g) => {
             let a = g.alpha;
             let wm = ggx_visible(a, wo, u1, u2);
-            let (wi, w) = rough_finish(fr, wo, wm, u0, |w, m| ggx_g1(a, w, m));
+            let (wi, w) = rough_finish(fr, wo, wm, u0, G1::Ggx(a));
             (wi, w, none)
         }
         FastFace::Beckmann { ndf, mitsuba_g1 } => {
             let a = ndf.alpha;
-            let (wm, redo) = beckmann_visible(a, tab, wo, u1, u2);
+            let (wm, redo) = beckmann_visible(a, tab, wo, u1, u2, full);
             let (wi, w) = if mitsuba_g1 {
-                rough_finish(fr, wo, wm, u0, |w, m| beckmann_g1_mitsuba(a, w, m))
+                rough_finish(fr, wo, wm, u0, G1::BeckmannMitsuba(a))
             } else {
-                rough_finish(fr, wo, wm, u0, |w, m| beckmann_g1_exact(a, w, m))
+                rough_finish(fr, wo, wm, u0, G1::Beckmann(a))
             };
             (wi, w, redo)
         }
@@ -410,6 +459,8 @@ struct Wavefront {
     ny: Vec<f32>,
     nz: Vec<f32>,
     g: Vec<f32>,
+    /// Photons of the round whose interaction is redone with the full Beckmann iteration.
+    redo: Vec<u16>,
 }
 
 impl Wavefront {
@@ -428,6 +479,7 @@ impl Wavefront {
             ny: z(),
             nz: z(),
             g: z(),
+            redo: Vec::with_capacity(CHUNK),
         }
     }
 }
@@ -533,7 +585,14 @@ impl Gonio {
         acc: &mut Acc,
     ) {
         let mut wf = Wavefront::new();
-        let tab: &[f32; TAB_NC * TAB_NU] = slope_table().try_into().expect("table size");
+        // the Beckmann quantile table (built on first use; a dummy for other faces)
+        static NONE: [f32; TAB_NC * TAB_NU] = [0.0; TAB_NC * TAB_NU];
+        let beckmann = |f: &FastFace| matches!(f, FastFace::Beckmann { .. });
+        let tab: &[f32; TAB_NC * TAB_NU] = if beckmann(&fp.front) || beckmann(&fp.back) {
+            slope_table().try_into().expect("table size")
+        } else {
+            &NONE
+        };
         let mut k0 = 0;
         while k0 < count {
             let m = (count - k0).min(CHUNK as u64) as usize;
@@ -629,24 +688,36 @@ impl Gonio {
                 };
                 let (u0, u1, u2) =
                     (F::load(&wf.u0[s.clone()]), F::load(&wf.u1[s.clone()]), F::load(&wf.u2[s.clone()]));
-                let (wi, g, redo) = interact_block::<N>(face, &fr, tab, top, d, u0, u1, u2);
+                let (wi, g, redo) = interact_block::<N>(face, &fr, tab, top, d, u0, u1, u2, false);
                 wi.x.store(&mut wf.nx[s.clone()]);
                 wi.y.store(&mut wf.ny[s.clone()]);
                 wi.z.store(&mut wf.nz[s.clone()]);
                 g.store(&mut wf.g[s]);
                 if redo.any() {
                     for l in 0..N {
-                        let i = b * N + l;
-                        if redo.get(l) && i < n {
-                            let flip = |v: Vec3| if top { v } else { Vec3::new(v.x, -v.y, -v.z) };
-                            let wo = flip(-Vec3::new(wf.dx[i], wf.dy[i], wf.dz[i]));
-                            let (wi, g) = interact_scalar(face, &fr, wo, wf.u0[i], wf.u1[i], wf.u2[i]);
-                            let wi = flip(wi);
-                            (wf.nx[i], wf.ny[i], wf.nz[i], wf.g[i]) = (wi.x, wi.y, wi.z, g);
+                        if redo.get(l) && b * N + l < n {
+                            wf.redo.push((b * N + l) as u16);
                         }
                     }
                 }
             }
+            // the lanes to redo (Beckmann tails, normal incidence), gathered into full blocks
+            for blk in wf.redo.chunks(N) {
+                let mut g = [[0.0f32; N]; 6];
+                for (l, &i) in blk.iter().enumerate() {
+                    let i = i as usize;
+                    for (c, a) in [&wf.dx, &wf.dy, &wf.dz, &wf.u0, &wf.u1, &wf.u2].into_iter().enumerate() {
+                        g[c][l] = a[i];
+                    }
+                }
+                let d = V3 { x: F(g[0]), y: F(g[1]), z: F(g[2]) };
+                let (wi, w, _) = interact_block::<N>(face, &fr, tab, top, d, F(g[3]), F(g[4]), F(g[5]), true);
+                for (l, &i) in blk.iter().enumerate() {
+                    let i = i as usize;
+                    (wf.nx[i], wf.ny[i], wf.nz[i], wf.g[i]) = (wi.x.0[l], wi.y.0[l], wi.z.0[l], w.0[l]);
+                }
+            }
+            wf.redo.clear();
             // exit and tally, or traverse the plate (and compact)
             let mut kept = 0;
             for i in 0..n {
@@ -710,9 +781,10 @@ mod tests {
     use crate::sampling::square_to_uniform_sphere;
 
     /// Every lane of the SIMD interaction equals the scalar interaction bit for bit (new
-    /// direction and weight factor; the direction of a lost sample is irrelevant), except the
-    /// lanes flagged for the scalar redo, which must be rare; for 8 and 16 lanes, every face
-    /// kind, both faces, random directions from both sides (plus normal incidence).
+    /// direction and weight factor; the direction of a lost sample is irrelevant): all lanes
+    /// with the full Beckmann iteration, the lanes not flagged for a redo without it (and the
+    /// flagged ones must be rare); for 8 and 16 lanes, every face kind, both faces, random
+    /// directions from both sides (plus normal incidence).
     fn check_kernels<const N: usize>() {
         let fr = Fresnel::new(1.49);
         let tab: &[f32; TAB_NC * TAB_NU] = slope_table().try_into().unwrap();
@@ -740,27 +812,30 @@ mod tests {
                         (u0[l], u1[l], u2[l]) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
                     }
                     let dv = V3 { x: F(d.map(|v| v.x)), y: F(d.map(|v| v.y)), z: F(d.map(|v| v.z)) };
-                    let (wi, g, redo) = interact_block::<N>(face, &fr, tab, top, dv, F(u0), F(u1), F(u2));
                     let flip = |v: Vec3| if top { v } else { Vec3::new(v.x, -v.y, -v.z) };
-                    for l in 0..N {
-                        lanes += 1;
-                        if redo.get(l) {
-                            redone += 1;
-                            continue;
-                        }
-                        let (e, ge) = interact_scalar(face, &fr, flip(-d[l]), u0[l], u1[l], u2[l]);
-                        let e = flip(e);
-                        assert_eq!(g.0[l].to_bits(), ge.to_bits(), "{face:?} top {top} d {} weight", d[l]);
-                        if ge > 0.0 {
-                            let got = [wi.x.0[l], wi.y.0[l], wi.z.0[l]].map(f32::to_bits);
-                            assert_eq!(
-                                got,
-                                [e.x, e.y, e.z].map(f32::to_bits),
-                                "{face:?} top {top} d {}",
-                                d[l]
-                            );
-                        } else {
-                            lost += 1;
+                    for full in [false, true] {
+                        let (wi, g, redo) =
+                            interact_block::<N>(face, &fr, tab, top, dv, F(u0), F(u1), F(u2), full);
+                        for l in 0..N {
+                            if full {
+                                assert!(!redo.get(l));
+                            } else {
+                                lanes += 1;
+                                if redo.get(l) {
+                                    redone += 1;
+                                    continue;
+                                }
+                            }
+                            let (e, ge) = interact_scalar(face, &fr, flip(-d[l]), u0[l], u1[l], u2[l]);
+                            let e = flip(e);
+                            let what = format!("{face:?} top {top} full {full} d {}", d[l]);
+                            assert_eq!(g.0[l].to_bits(), ge.to_bits(), "{what}: weight");
+                            if ge > 0.0 {
+                                let got = [wi.x.0[l], wi.y.0[l], wi.z.0[l]].map(f32::to_bits);
+                                assert_eq!(got, [e.x, e.y, e.z].map(f32::to_bits), "{what}");
+                            } else if !full {
+                                lost += 1;
+                            }
                         }
                     }
                 }
