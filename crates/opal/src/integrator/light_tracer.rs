@@ -97,6 +97,93 @@ fn empty_maps(targets: &[Option<IrradianceTarget>]) -> Vec<Option<IrradianceMaps
         .collect()
 }
 
+/// Units of one deposit of the reference size (see [`FixedPoint`]): 2²⁴.
+const REF_UNITS: f64 = (1u64 << 24) as f64;
+
+/// Fixed-point scale of one pass (see the module docs, "Accumulation").
+///
+/// A deposit of value `v = β_c / (N · A_texel)` is stored as the integer `round(β_c · f)`
+/// with `f = 2²⁴ · A_min / (A_texel · β_ref)` per triangle (`A_min` = the smallest texel area
+/// of the shape, `β_ref` = the largest initial path weight of any light, `max_c Φ_l,c / pmf_l`):
+/// an unscattered path's deposit into the shape's smallest texel is 2²⁴ units. The texel's
+/// value is its integer sum times `β_ref / (2²⁴ · A_min · N)`.
+#[derive(Clone, Debug)]
+struct FixedPoint {
+    /// Per triangle of the soup: units per unit of β (0 = no deposit).
+    factor: Vec<f64>,
+    /// Per shape: W·m⁻² per unit.
+    unit: Vec<f64>,
+}
+
+impl FixedPoint {
+    fn new(scene: &Scene, targets: &[Option<IrradianceTarget>], paths: u64, shift: i32) -> FixedPoint {
+        let beta_ref = scene
+            .light_sampler()
+            .map(|ls| {
+                scene
+                    .lights
+                    .iter()
+                    .enumerate()
+                    .map(|(i, l)| {
+                        let pmf = ls.pmf(i) as f64;
+                        if pmf > 0.0 { l.power().max_component() as f64 / pmf } else { 0.0 }
+                    })
+                    .fold(0.0f64, f64::max)
+            })
+            .filter(|b| b.is_finite() && *b > 0.0)
+            .unwrap_or(1.0);
+        let units = REF_UNITS * 2f64.powi(shift);
+        let n_prims = scene.shapes.last().map_or(0, |s| s.first_prim as usize + s.mesh.triangle_count());
+        let mut factor = vec![0.0; n_prims];
+        let mut unit = vec![0.0; scene.shapes.len()];
+        for (k, (shape, t)) in scene.shapes.iter().zip(targets).enumerate() {
+            let Some(t) = t else { continue };
+            let a_min =
+                t.texel_area.iter().copied().filter(|&a| a > 0.0).fold(f32::INFINITY, f32::min) as f64;
+            if !a_min.is_finite() {
+                continue;
+            }
+            unit[k] = beta_ref / (units * a_min * paths.max(1) as f64);
+            for (j, &a) in t.texel_area.iter().enumerate().take(shape.mesh.triangle_count()) {
+                if a > 0.0 {
+                    factor[shape.first_prim as usize + j] = units * a_min / (a as f64 * beta_ref);
+                }
+            }
+        }
+        FixedPoint { factor, unit }
+    }
+}
+
+/// Integer irradiance sums of one shape (one worker).
+struct ShapeAcc {
+    width: usize,
+    /// `[r, g, b]` per texel, flat (a zeroed `Vec<i64>` is allocated as fresh zero pages).
+    direct: Vec<i64>,
+    indirect: Vec<i64>,
+    /// Sum of |units| of every deposit (exact): bounds every texel's sum.
+    total: u128,
+}
+
+type Acc = Vec<Option<ShapeAcc>>;
+
+fn empty_acc(targets: &[Option<IrradianceTarget>]) -> Acc {
+    targets
+        .iter()
+        .map(|t| {
+            t.as_ref().map(|t| ShapeAcc {
+                width: t.width,
+                direct: vec![0; 3 * t.width * t.height],
+                indirect: vec![0; 3 * t.width * t.height],
+                total: 0,
+            })
+        })
+        .collect()
+}
+
+/// Largest number of accumulators (one per worker): bounds the memory on machines with many
+/// logical CPUs.
+const MAX_WORKERS: usize = 8;
+
 /// Traces `s.paths` light paths and returns the irradiance deposited into the maps of the shapes
 /// that have a target (`targets[shape]`). The shapes' `uv`s (`scene.interaction`) locate texels:
 /// texel `(floor(u·W), floor(v·H))`, clamped. `on_batch` is called after each batch.
@@ -106,75 +193,116 @@ pub fn trace(
     s: &LightTraceSettings,
     on_batch: &(dyn Fn() + Sync),
 ) -> LightTraceOutput {
-    let mut maps = empty_maps(targets);
     let Some(sampler) = scene.light_sampler() else {
-        return LightTraceOutput { maps, paths: 0, nonfinite: 0 };
+        return LightTraceOutput { maps: empty_maps(targets), paths: 0, nonfinite: 0 };
     };
+    let mut shift = 0;
+    loop {
+        let fp = FixedPoint::new(scene, targets, s.paths, shift);
+        match trace_fixed(scene, sampler, targets, s, &fp, on_batch) {
+            Ok(out) => return out,
+            // Some shape's deposits summed to ≥ 2⁶³ units: a texel may have overflowed. Trace
+            // again with a coarser unit (never seen in practice; the result stays deterministic
+            // since the decision depends on exact integer sums only).
+            Err(bits) => shift -= bits,
+        }
+    }
+}
+
+/// One pass at a fixed-point scale; `Err(bits)` when the scale must shrink by `2^bits`.
+fn trace_fixed(
+    scene: &Scene,
+    sampler: &crate::light::LightSampler,
+    targets: &[Option<IrradianceTarget>],
+    s: &LightTraceSettings,
+    fp: &FixedPoint,
+    on_batch: &(dyn Fn() + Sync),
+) -> Result<LightTraceOutput, i32> {
+    use std::sync::atomic::{AtomicU64, Ordering};
     let batch = s.batch_size.max(1);
     let n_batches = s.paths.div_ceil(batch);
-    let inv_n = 1.0 / s.paths.max(1) as f64;
-    let mut nonfinite = 0u64;
-    // waves bound the memory (one set of maps per batch in flight, at most 8: machines that
-    // report many logical CPUs otherwise multiply the map memory); the wave size does not
-    // change the result since batches are merged in index order.
-    let wave = (2 * rayon::current_num_threads().max(1) as u64).min(8).min(n_batches) as usize;
-    // One accumulator per batch in flight, allocated once and reused: merging a batch into the
-    // result also zeroes its accumulator (one pass over memory instead of alloc + zero + merge).
-    let mut accs: Vec<Vec<Option<IrradianceMaps>>> = (0..wave).map(|_| empty_maps(targets)).collect();
-    let mut b0 = 0;
-    while b0 < n_batches {
-        let b1 = (b0 + wave as u64).min(n_batches);
-        let bad: Vec<u64> = accs[..(b1 - b0) as usize]
-            .par_iter_mut()
-            .enumerate()
-            .map(|(i, acc)| {
-                let b = b0 + i as u64;
-                let mut bad = 0u64;
+    // Workers pull batch indices from a counter and add into their own accumulator for the
+    // whole pass. Integer sums do not depend on the order of the additions, so which worker
+    // traced which batch does not change the result.
+    let workers = rayon::current_num_threads().clamp(1, MAX_WORKERS).min(n_batches.max(1) as usize);
+    let next = AtomicU64::new(0);
+    let results: Vec<(Acc, u64)> = (0..workers)
+        .into_par_iter()
+        .map(|_| {
+            let mut acc = empty_acc(targets);
+            let mut bad = 0u64;
+            loop {
+                let b = next.fetch_add(1, Ordering::Relaxed);
+                if b >= n_batches {
+                    break;
+                }
                 let start = b * batch;
                 let end = ((b + 1) * batch).min(s.paths);
                 let mut rng = Rng::new(s.seed, 0x4c54, b);
                 for _ in start..end {
-                    trace_path(scene, sampler, targets, acc, &mut rng, s, inv_n, &mut bad);
+                    trace_path(scene, sampler, fp, &mut acc, &mut rng, s, &mut bad);
                 }
                 on_batch();
-                bad
-            })
-            .collect();
-        // merge in batch order (deterministic), per shape in parallel
-        for (i, bad) in bad.into_iter().enumerate() {
-            nonfinite += bad;
-            maps.par_iter_mut().zip(accs[i].par_iter_mut()).for_each(|(m, p)| {
-                if let (Some(m), Some(p)) = (m.as_mut(), p.as_mut()) {
-                    for (a, b) in m.direct.iter_mut().zip(p.direct.iter_mut()) {
-                        for c in 0..3 {
-                            a[c] += b[c];
-                        }
-                        *b = [0.0; 3];
-                    }
-                    for (a, b) in m.indirect.iter_mut().zip(p.indirect.iter_mut()) {
-                        for c in 0..3 {
-                            a[c] += b[c];
-                        }
-                        *b = [0.0; 3];
-                    }
-                }
-            });
+            }
+            (acc, bad)
+        })
+        .collect();
+    let nonfinite = results.iter().map(|r| r.1).sum();
+    let mut accs: Vec<Acc> = results.into_iter().map(|r| r.0).collect();
+    // overflow check: the exact sum of |units| of a shape bounds each of its texels' sums
+    for k in 0..targets.len() {
+        let total: u128 = accs.iter().filter_map(|a| a[k].as_ref()).map(|m| m.total).sum();
+        if total >= 1u128 << 63 {
+            let bits = (128 - total.leading_zeros()) as i32 - 62;
+            return Err(bits.max(1));
         }
-        b0 = b1;
     }
-    LightTraceOutput { maps, paths: s.paths, nonfinite }
+    // reduce: wrapping integer sums (exact since no texel's true sum reaches 2⁶³), then scale
+    let (first, rest) = accs.split_first_mut().expect("at least one worker");
+    let maps = first
+        .par_iter_mut()
+        .enumerate()
+        .map(|(k, m)| {
+            let m = m.take()?;
+            let unit = fp.unit[k];
+            let reduce = |own: Vec<i64>, direct: bool| -> Vec<[f64; 3]> {
+                own.par_chunks_exact(3)
+                    .enumerate()
+                    .map(|(i, v)| {
+                        let mut sum = [v[0], v[1], v[2]];
+                        for a in rest.iter() {
+                            let o = a[k].as_ref().expect("same targets");
+                            let o = if direct {
+                                &o.direct[3 * i..3 * i + 3]
+                            } else {
+                                &o.indirect[3 * i..3 * i + 3]
+                            };
+                            for c in 0..3 {
+                                sum[c] = sum[c].wrapping_add(o[c]);
+                            }
+                        }
+                        sum.map(|x| x as f64 * unit)
+                    })
+                    .collect()
+            };
+            let height = m.direct.len() / (3 * m.width.max(1));
+            let width = m.width;
+            let direct = reduce(m.direct, true);
+            let indirect = reduce(m.indirect, false);
+            Some(IrradianceMaps { width, height, direct, indirect })
+        })
+        .collect();
+    Ok(LightTraceOutput { maps, paths: s.paths, nonfinite })
 }
 
-#[allow(clippy::too_many_arguments)]
 #[inline]
 fn trace_path(
     scene: &Scene,
     sampler: &crate::light::LightSampler,
-    targets: &[Option<IrradianceTarget>],
-    acc: &mut [Option<IrradianceMaps>],
+    fp: &FixedPoint,
+    acc: &mut Acc,
     rng: &mut Rng,
     s: &LightTraceSettings,
-    inv_n: f64,
     bad: &mut u64,
 ) {
     let (li, pmf, _) = sampler.sample(rng.next_f32());
@@ -194,8 +322,8 @@ fn trace_path(
     let mut depth = 0i32;
     // The texel of a deposit is a random location in maps of up to millions of texels: a cache
     // miss. Deposits are therefore deferred by one segment: the texel's cache line is prefetched
-    // when it is found and the addition is done after the next ray is traced (same values, same
-    // order of additions, so the result is unchanged).
+    // when it is found and the addition is done after the next ray is traced (integer sums: the
+    // order of additions does not matter anyway).
     let mut pending: Option<Pending> = None;
     while let Some(si) = scene.intersect(&ray) {
         if let Some(p) = pending.take() {
@@ -205,23 +333,26 @@ fn trace_path(
         let wo = -ray.d;
         let front = wo.dot(si.ng) > 0.0;
         let shape = si.shape as usize;
-        if front {
-            if let (Some(t), Some(m)) = (&targets[shape], acc[shape].as_ref()) {
-                let local = (si.prim - scene.shapes[shape].first_prim) as usize;
-                let ta = t.texel_area.get(local).copied().unwrap_or(0.0);
-                if ta > 0.0 {
-                    let x = ((si.uv.x * t.width as f32) as i64).clamp(0, t.width as i64 - 1) as usize;
-                    let y = ((si.uv.y * t.height as f32) as i64).clamp(0, t.height as i64 - 1) as usize;
-                    let e = beta.to_f64();
-                    if e.iter().all(|v| v.is_finite()) {
-                        let k = inv_n / ta as f64;
-                        let index = y * t.width + x;
-                        let direct = depth == 1;
-                        prefetch(if direct { &m.direct[index] } else { &m.indirect[index] });
-                        pending = Some(Pending { shape, index, direct, value: e.map(|v| v * k) });
-                    } else {
-                        *bad += 1;
-                    }
+        let f = fp.factor[si.prim as usize];
+        if front && f > 0.0 {
+            if let Some(m) = acc[shape].as_ref() {
+                let height = m.direct.len() / (3 * m.width);
+                let x = ((si.uv.x * m.width as f32) as i64).clamp(0, m.width as i64 - 1) as usize;
+                let y = ((si.uv.y * height as f32) as i64).clamp(0, height as i64 - 1) as usize;
+                let e = beta.to_f64();
+                if e.iter().all(|v| v.is_finite()) {
+                    let index = 3 * (y * m.width + x);
+                    let direct = depth == 1;
+                    prefetch(if direct { &m.direct[index] } else { &m.indirect[index] });
+                    // round half away from zero (`as` saturates: an absurd deposit then shows
+                    // in the overflow check)
+                    let value = e.map(|v| {
+                        let q = v * f;
+                        (q + 0.5f64.copysign(q)) as i64
+                    });
+                    pending = Some(Pending { shape, index, direct, value });
+                } else {
+                    *bad += 1;
                 }
             }
         }
@@ -256,18 +387,21 @@ fn trace_path(
 /// A deposit waiting for its cache line (see `trace_path`).
 struct Pending {
     shape: usize,
+    /// Index of the texel's red channel in the flat map.
     index: usize,
     direct: bool,
-    value: [f64; 3],
+    value: [i64; 3],
 }
 
 impl Pending {
     #[inline]
-    fn apply(self, acc: &mut [Option<IrradianceMaps>]) {
+    fn apply(self, acc: &mut Acc) {
         if let Some(m) = acc[self.shape].as_mut() {
-            let cell = if self.direct { &mut m.direct[self.index] } else { &mut m.indirect[self.index] };
+            let i = self.index;
+            let cell = if self.direct { &mut m.direct[i..i + 3] } else { &mut m.indirect[i..i + 3] };
             for (a, v) in cell.iter_mut().zip(self.value) {
-                *a += v;
+                *a = a.wrapping_add(v);
+                m.total += v.unsigned_abs() as u128;
             }
         }
     }
