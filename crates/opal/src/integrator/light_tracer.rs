@@ -20,9 +20,11 @@
 //! box against the path tracer's estimate; thread-count independence.
 
 use crate::bsdf::{Bxdf, TransportMode};
-use crate::math::Vec2;
-use crate::sampling::Rng;
+use crate::math::{Frame, INV_PI, Vec2, Vec3};
+use crate::sampling::{Rng, square_to_cosine_hemisphere, square_to_cosine_hemisphere_pdf};
 use crate::scene::Scene;
+use crate::scene::build::eval_texture;
+use crate::scene::desc::{BsdfDesc, TextureDesc};
 use crate::spectrum::Spectrum;
 use rayon::prelude::*;
 
@@ -226,10 +228,11 @@ fn trace_fixed(
     // traced which batch does not change the result.
     let workers = rayon::current_num_threads().clamp(1, MAX_WORKERS).min(n_batches.max(1) as usize);
     let next = AtomicU64::new(0);
+    let prims = prims(scene, targets, fp);
     let results: Vec<(Acc, u64)> = (0..workers)
         .into_par_iter()
         .map(|_| {
-            let mut acc = empty_acc(targets);
+            let mut sink = Sink::new(empty_acc(targets));
             let mut bad = 0u64;
             loop {
                 let b = next.fetch_add(1, Ordering::Relaxed);
@@ -240,11 +243,11 @@ fn trace_fixed(
                 let end = ((b + 1) * batch).min(s.paths);
                 let mut rng = Rng::new(s.seed, 0x4c54, b);
                 for _ in start..end {
-                    trace_path(scene, sampler, fp, &mut acc, &mut rng, s, &mut bad);
+                    trace_path(scene, sampler, &prims, &mut sink, &mut rng, s, &mut bad);
                 }
                 on_batch();
             }
-            (acc, bad)
+            (sink.finish(), bad)
         })
         .collect();
     let nonfinite = results.iter().map(|r| r.1).sum();
@@ -295,12 +298,111 @@ fn trace_fixed(
     Ok(LightTraceOutput { maps, paths: s.paths, nonfinite })
 }
 
+/// Material of a triangle as the light tracer needs it.
+#[derive(Clone, Copy)]
+enum Mat<'a> {
+    /// Lambertian with this reflectance; `two_sided` = wrapped in `twosided`.
+    Diffuse { tex: &'a TextureDesc, two_sided: bool },
+    /// Anything else: `Scene::bsdf`.
+    Generic,
+}
+
+/// Per-triangle data precomputed for the hit reconstruction (same formulas as
+/// `Scene::interaction` and `Scene::bsdf`, evaluated once per triangle instead of per hit).
+#[derive(Clone, Copy)]
+struct Prim<'a> {
+    /// Unit geometric normal.
+    ng: Vec3,
+    /// Corner uvs (zeros without uvs).
+    uv: [Vec2; 3],
+    /// Corner shading normals, when the mesh has them.
+    normals: Option<[Vec3; 3]>,
+    shape: u32,
+    /// Fixed-point units per unit of β for a deposit (0 = no deposit).
+    factor: f64,
+    /// Deposit map size (texels).
+    width: u32,
+    height: u32,
+    mat: Mat<'a>,
+}
+
+fn prims<'a>(scene: &'a Scene, targets: &[Option<IrradianceTarget>], fp: &FixedPoint) -> Vec<Prim<'a>> {
+    let mut out = Vec::with_capacity(fp.factor.len());
+    for (k, sh) in scene.shapes.iter().enumerate() {
+        let m = &sh.mesh;
+        let (desc, two_sided) = match &sh.bsdf {
+            BsdfDesc::TwoSided(inner) => (inner.as_ref(), true),
+            d => (d, false),
+        };
+        let mat = match desc {
+            BsdfDesc::Diffuse { reflectance } => Mat::Diffuse { tex: reflectance, two_sided },
+            _ => Mat::Generic,
+        };
+        let (width, height) = targets[k].as_ref().map_or((0, 0), |t| (t.width as u32, t.height as u32));
+        for (j, idx) in m.indices.iter().enumerate() {
+            let [i0, i1, i2] = idx.map(|i| i as usize);
+            let (p0, p1, p2) = (m.positions[i0], m.positions[i1], m.positions[i2]);
+            out.push(Prim {
+                ng: (p1 - p0).cross(p2 - p0).normalize(),
+                uv: if m.uvs.is_empty() { [Vec2::ZERO; 3] } else { [m.uvs[i0], m.uvs[i1], m.uvs[i2]] },
+                normals: (!m.normals.is_empty()).then(|| [m.normals[i0], m.normals[i1], m.normals[i2]]),
+                shape: k as u32,
+                factor: fp.factor[sh.first_prim as usize + j],
+                width,
+                height,
+                mat,
+            });
+        }
+    }
+    out
+}
+
+/// The scattering weight of the last vertex, applied after the next ray is traced so that the
+/// texture lookup's cache miss overlaps the traversal.
+enum Weight<'a> {
+    Known(Spectrum),
+    /// Lambert: `(reflectance(uv) · 1/π) · (|cos θi| / pdf)` (as `BsdfSample::weight`).
+    Lambert {
+        tex: &'a TextureDesc,
+        uv: Vec2,
+        ratio: f32,
+    },
+}
+
+impl Weight<'_> {
+    #[inline]
+    fn get(self) -> Spectrum {
+        match self {
+            Weight::Known(w) => w,
+            Weight::Lambert { tex, uv, ratio } => (eval_texture(tex, uv) * INV_PI) * ratio,
+        }
+    }
+}
+
+/// Hints the cache lines of a bitmap lookup at `uv` (no effect on results).
+#[inline]
+fn prefetch_texture(tex: &TextureDesc, uv: Vec2) {
+    if let TextureDesc::Bitmap(b) = tex {
+        let img = &*b.image;
+        if img.width == 0 || img.height == 0 || !(uv.x.is_finite() && uv.y.is_finite()) {
+            return;
+        }
+        let x = ((uv.x * img.width as f32) as i64).clamp(0, img.width as i64 - 1) as usize;
+        let y = ((uv.y * img.height as f32 - 0.5) as i64).clamp(0, img.height as i64 - 1) as usize;
+        let i = y * img.width + x;
+        prefetch(&img.data[i]);
+        if let Some(v) = img.data.get(i + img.width) {
+            prefetch(v);
+        }
+    }
+}
+
 #[inline]
 fn trace_path(
     scene: &Scene,
     sampler: &crate::light::LightSampler,
-    fp: &FixedPoint,
-    acc: &mut Acc,
+    prims: &[Prim],
+    sink: &mut Sink,
     rng: &mut Rng,
     s: &LightTraceSettings,
     bad: &mut u64,
@@ -311,80 +413,154 @@ fn trace_path(
     if pmf <= 0.0 || es.pdf_pos <= 0.0 || es.pdf_dir <= 0.0 {
         return;
     }
-    let cos = if es.n == crate::math::Vec3::ZERO { 1.0 } else { es.ray.d.dot(es.n).abs() };
+    let cos = if es.n == Vec3::ZERO { 1.0 } else { es.ray.d.dot(es.n).abs() };
     let mut beta = es.le * (cos / (pmf * es.pdf_pos * es.pdf_dir));
     let mut ray = es.ray;
     // emitted rays of area lights start on the surface: offset them
-    if es.n != crate::math::Vec3::ZERO {
+    if es.n != Vec3::ZERO {
         ray = super::spawn_ray(ray.o, es.n, ray.d);
     }
     let mode = TransportMode::Importance;
     let mut depth = 0i32;
     // The texel of a deposit is a random location in maps of up to millions of texels: a cache
-    // miss. Deposits are therefore deferred by one segment: the texel's cache line is prefetched
-    // when it is found and the addition is done after the next ray is traced (integer sums: the
-    // order of additions does not matter anyway).
-    let mut pending: Option<Pending> = None;
-    while let Some(si) = scene.intersect(&ray) {
-        if let Some(p) = pending.take() {
-            p.apply(acc);
-        }
-        depth += 1;
-        let wo = -ray.d;
-        let front = wo.dot(si.ng) > 0.0;
-        let shape = si.shape as usize;
-        let f = fp.factor[si.prim as usize];
-        if front && f > 0.0 {
-            if let Some(m) = acc[shape].as_ref() {
-                let height = m.direct.len() / (3 * m.width);
-                let x = ((si.uv.x * m.width as f32) as i64).clamp(0, m.width as i64 - 1) as usize;
-                let y = ((si.uv.y * height as f32) as i64).clamp(0, height as i64 - 1) as usize;
-                let e = beta.to_f64();
-                if e.iter().all(|v| v.is_finite()) {
-                    let index = 3 * (y * m.width + x);
-                    let direct = depth == 1;
-                    prefetch(if direct { &m.direct[index] } else { &m.indirect[index] });
-                    // round half away from zero (`as` saturates: an absurd deposit then shows
-                    // in the overflow check)
-                    let value = e.map(|v| {
-                        let q = v * f;
-                        (q + 0.5f64.copysign(q)) as i64
-                    });
-                    pending = Some(Pending { shape, index, direct, value });
-                } else {
-                    *bad += 1;
+    // and TLB miss. Deposits therefore go through the worker's queue ([`Sink`]), which prefetches
+    // them and adds them [`QUEUE`] deposits later (integer sums: the order of additions does not
+    // matter). Likewise the albedo lookup of a Lambertian vertex (its sampled direction does not depend on the albedo), and with it the Russian
+    // roulette, which consumes its random number after the vertex's direction sample as before:
+    // same random numbers, same result; a path killed by the roulette has traced one ray for
+    // nothing (from `rr_depth` on only).
+    let mut weight: Option<Weight> = None;
+    loop {
+        let hit = scene.intersect_hit(&ray);
+        if let Some(w) = weight.take() {
+            let w = w.get();
+            if w.is_black() {
+                break;
+            }
+            beta *= w;
+            if s.rr_depth >= 0 && depth >= s.rr_depth {
+                let q = beta_survival(beta, es.le, cos, pmf, es.pdf_pos, es.pdf_dir);
+                if rng.next_f32() >= q {
+                    break;
                 }
+                beta *= 1.0 / q;
+            }
+        }
+        let Some(h) = hit else { break };
+        depth += 1;
+        let pr = &prims[h.prim as usize];
+        let wo = -ray.d;
+        let front = wo.dot(pr.ng) > 0.0;
+        let b0 = 1.0 - h.b1 - h.b2;
+        let uv = pr.uv[0] * b0 + pr.uv[1] * h.b1 + pr.uv[2] * h.b2;
+        if front && pr.factor > 0.0 {
+            let (w, hgt) = (pr.width as usize, pr.height as usize);
+            let x = ((uv.x * w as f32) as i64).clamp(0, w as i64 - 1) as usize;
+            let y = ((uv.y * hgt as f32) as i64).clamp(0, hgt as i64 - 1) as usize;
+            let e = beta.to_f64();
+            if e.iter().all(|v| v.is_finite()) {
+                let shape = pr.shape as usize;
+                let index = 3 * (y * w + x);
+                let direct = depth == 1;
+                // round half away from zero (`as` saturates: an absurd deposit then shows in
+                // the overflow check)
+                let value = e.map(|v| {
+                    let q = v * pr.factor;
+                    (q + 0.5f64.copysign(q)) as i64
+                });
+                sink.push(Pending { shape, index, direct, value });
+            } else {
+                *bad += 1;
             }
         }
         if s.max_depth >= 0 && depth >= s.max_depth {
             break;
         }
-        let (frame, bsdf) = scene.bsdf(&si, wo);
-        let wo_l = frame.to_local(wo);
-        let uc = rng.next_f32();
-        let u: Vec2 = rng.next_2d();
-        let Some(bs) = bsdf.sample(wo_l, uc, u, mode) else { break };
-        let w = bs.weight();
-        if w.is_black() {
-            break;
-        }
-        beta *= w;
-        let wi = frame.to_world(bs.wi);
-        ray = super::spawn_ray(si.p, si.ng, wi);
-        if s.rr_depth >= 0 && depth >= s.rr_depth {
-            let q = beta_survival(beta, es.le, cos, pmf, es.pdf_pos, es.pdf_dir);
-            if rng.next_f32() >= q {
-                break;
+        let p = ray.at(h.t);
+        match pr.mat {
+            Mat::Diffuse { tex, two_sided } => {
+                let ns = match pr.normals {
+                    None => pr.ng,
+                    Some([n0, n1, n2]) => {
+                        let n = n0 * b0 + n1 * h.b1 + n2 * h.b2;
+                        let l = n.length();
+                        if l > 0.0 { n / l } else { pr.ng }
+                    }
+                };
+                let n = if two_sided && wo.dot(pr.ng) < 0.0 { -ns } else { ns };
+                let frame = Frame::from_normal(n);
+                // `Lambert::sample`, in world space
+                let _uc = rng.next_f32(); // drawn for the generic sampler: same streams
+                let u: Vec2 = rng.next_2d();
+                if wo.dot(frame.n) <= 0.0 {
+                    break;
+                }
+                let wi = square_to_cosine_hemisphere(u);
+                let pdf = square_to_cosine_hemisphere_pdf(wi);
+                if pdf <= 0.0 {
+                    break;
+                }
+                prefetch_texture(tex, uv);
+                weight = Some(Weight::Lambert { tex, uv, ratio: wi.z.abs() / pdf });
+                ray = super::spawn_ray(p, pr.ng, frame.to_world(wi));
             }
-            beta *= 1.0 / q;
+            Mat::Generic => {
+                let si = scene.interaction(&ray, &h);
+                let (frame, bsdf) = scene.bsdf(&si, wo);
+                let wo_l = frame.to_local(wo);
+                let uc = rng.next_f32();
+                let u: Vec2 = rng.next_2d();
+                let Some(bs) = bsdf.sample(wo_l, uc, u, mode) else { break };
+                weight = Some(Weight::Known(bs.weight()));
+                ray = super::spawn_ray(si.p, si.ng, frame.to_world(bs.wi));
+            }
         }
-    }
-    if let Some(p) = pending {
-        p.apply(acc);
     }
 }
 
-/// A deposit waiting for its cache line (see `trace_path`).
+/// Deposits in flight per worker: the queue length of [`Sink`].
+const QUEUE: usize = 32;
+
+/// A worker's accumulator behind a queue of [`QUEUE`] deposits: a deposit's texel is
+/// prefetched when it is pushed and the addition happens when it leaves the queue, about ten
+/// paths later, so the memory latency overlaps the tracing instead of stalling it.
+struct Sink {
+    acc: Acc,
+    ring: [Pending; QUEUE],
+    head: usize,
+    len: usize,
+}
+
+impl Sink {
+    fn new(acc: Acc) -> Sink {
+        Sink { acc, ring: [Pending::default(); QUEUE], head: 0, len: 0 }
+    }
+    #[inline]
+    fn push(&mut self, p: Pending) {
+        if let Some(m) = self.acc[p.shape].as_ref() {
+            prefetch(if p.direct { &m.direct[p.index] } else { &m.indirect[p.index] });
+        }
+        if self.len == QUEUE {
+            let old = std::mem::replace(&mut self.ring[self.head], p);
+            self.head = (self.head + 1) % QUEUE;
+            old.apply(&mut self.acc);
+        } else {
+            self.ring[(self.head + self.len) % QUEUE] = p;
+            self.len += 1;
+        }
+    }
+    /// Applies the queued deposits and returns the accumulator.
+    fn finish(mut self) -> Acc {
+        for k in 0..self.len {
+            let p = self.ring[(self.head + k) % QUEUE];
+            p.apply(&mut self.acc);
+        }
+        self.acc
+    }
+}
+
+/// A deposit: texel, map and integer value.
+#[derive(Clone, Copy, Default)]
 struct Pending {
     shape: usize,
     /// Index of the texel's red channel in the flat map.
@@ -434,7 +610,7 @@ mod tests {
     use super::*;
     use crate::geometry::TriangleMesh;
     use crate::math::{PI, Vec3};
-    use crate::scene::desc::{AreaEmitterDesc, BsdfDesc, EmitterDesc, SceneDesc, ShapeDesc, TextureDesc};
+    use crate::scene::desc::{AreaEmitterDesc, EmitterDesc, SceneDesc, ShapeDesc};
 
     /// Square [-h,h]² in the plane y = 0 facing +y with uv = ((x+h)/2h, (z+h)/2h).
     fn floor_quad(h: f32) -> TriangleMesh {
@@ -631,5 +807,159 @@ mod tests {
         // relative std of the mean ≈ 1/sqrt(N) × O(1) ⇒ 1 % is > 5σ at N = 400 k.
         let expect = pi * le as f64 * rho as f64 / (1.0 - rho as f64);
         assert!((indirect / expect - 1.0).abs() < 0.01, "indirect {indirect} vs {expect}");
+    }
+
+    /// The pass as it was before the fast paths: generic hit reconstruction (`Scene::intersect`)
+    /// and BSDFs (`Scene::bsdf`), f64 sums in path order, one thread; same random streams.
+    fn reference(
+        scene: &Scene,
+        targets: &[Option<IrradianceTarget>],
+        s: &LightTraceSettings,
+    ) -> Vec<Option<IrradianceMaps>> {
+        let mut maps = empty_maps(targets);
+        let sampler = scene.light_sampler().unwrap();
+        let inv_n = 1.0 / s.paths as f64;
+        for b in 0..s.paths.div_ceil(s.batch_size) {
+            let mut rng = Rng::new(s.seed, 0x4c54, b);
+            for _ in b * s.batch_size..((b + 1) * s.batch_size).min(s.paths) {
+                let (li, pmf, _) = sampler.sample(rng.next_f32());
+                let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
+                let Some(es) = scene.lights[li].sample_le(u_pos, u_dir) else { continue };
+                let cos = es.ray.d.dot(es.n).abs();
+                let mut beta = es.le * (cos / (pmf * es.pdf_pos * es.pdf_dir));
+                let mut ray = crate::accel::spawn_ray(es.ray.o, es.n, es.ray.d);
+                let mut depth = 0;
+                while let Some(si) = scene.intersect(&ray) {
+                    depth += 1;
+                    let wo = -ray.d;
+                    let shape = si.shape as usize;
+                    if let (true, Some(t), Some(m)) =
+                        (wo.dot(si.ng) > 0.0, &targets[shape], maps[shape].as_mut())
+                    {
+                        let ta = t.texel_area[(si.prim - scene.shapes[shape].first_prim) as usize];
+                        let x = ((si.uv.x * t.width as f32) as i64).clamp(0, t.width as i64 - 1) as usize;
+                        let y = ((si.uv.y * t.height as f32) as i64).clamp(0, t.height as i64 - 1) as usize;
+                        let cell = if depth == 1 {
+                            &mut m.direct[y * t.width + x]
+                        } else {
+                            &mut m.indirect[y * t.width + x]
+                        };
+                        for (a, v) in cell.iter_mut().zip(beta.to_f64()) {
+                            *a += v * inv_n / ta as f64;
+                        }
+                    }
+                    let (frame, bsdf) = scene.bsdf(&si, wo);
+                    let uc = rng.next_f32();
+                    let u = rng.next_2d();
+                    let Some(bs) = bsdf.sample(frame.to_local(wo), uc, u, TransportMode::Importance) else {
+                        break;
+                    };
+                    let w = bs.weight();
+                    if w.is_black() {
+                        break;
+                    }
+                    beta *= w;
+                    ray = crate::accel::spawn_ray(si.p, si.ng, frame.to_world(bs.wi));
+                    if depth >= s.rr_depth {
+                        let q = beta_survival(beta, es.le, cos, pmf, es.pdf_pos, es.pdf_dir);
+                        if rng.next_f32() >= q {
+                            break;
+                        }
+                        beta *= 1.0 / q;
+                    }
+                }
+            }
+        }
+        maps
+    }
+
+    #[test]
+    fn fast_paths_and_fixed_point_match_the_generic_f64_pass_for_any_thread_count() {
+        use crate::image::Image;
+        use crate::scene::desc::{BitmapDesc, FilterType, WrapMode};
+        // floor with a bilinear bitmap albedo, a two-sided diffuse back wall, a small light
+        let img = Image {
+            width: 4,
+            height: 4,
+            data: (0..16).map(|i| Spectrum::rgb(0.2 + 0.04 * i as f32, 0.5, 0.9 - 0.05 * i as f32)).collect(),
+        };
+        let tex = TextureDesc::Bitmap(BitmapDesc {
+            image: std::sync::Arc::new(img),
+            filter: crate::scene::desc::FilterType::Bilinear,
+            wrap: WrapMode::Clamp,
+            path: "albedo.exr".into(),
+        });
+        let _ = FilterType::Nearest;
+        let quad = |p: [Vec3; 4]| TriangleMesh {
+            positions: p.to_vec(),
+            normals: vec![],
+            uvs: vec![Vec2::new(0.0, 0.0), Vec2::new(1.0, 0.0), Vec2::new(1.0, 1.0), Vec2::new(0.0, 1.0)],
+            indices: vec![[0, 1, 2], [0, 2, 3]],
+        };
+        let v = Vec3::new;
+        let shape =
+            |id: &str, mesh, bsdf, emitter| ShapeDesc { id: id.into(), mesh, bsdf, emitter, origin: None };
+        let desc = SceneDesc {
+            shapes: vec![
+                shape("floor", floor_quad(1.0), BsdfDesc::Diffuse { reflectance: tex }, None),
+                shape(
+                    "wall",
+                    quad([v(-1.0, 0.0, -1.0), v(1.0, 0.0, -1.0), v(1.0, 2.0, -1.0), v(-1.0, 2.0, -1.0)]),
+                    BsdfDesc::TwoSided(Box::new(diffuse(0.7))),
+                    None,
+                ),
+                shape(
+                    "light",
+                    quad([v(-0.3, 1.9, -0.3), v(0.3, 1.9, -0.3), v(0.3, 1.9, 0.3), v(-0.3, 1.9, 0.3)]),
+                    diffuse(0.0),
+                    Some(AreaEmitterDesc { radiance: Spectrum::rgb(5.0, 4.0, 3.0) }),
+                ),
+            ],
+            ..Default::default()
+        };
+        let scene = Scene::build(&desc).unwrap();
+        let targets = [
+            Some(target(8, 1.0)),
+            Some(IrradianceTarget { width: 4, height: 4, texel_area: vec![0.25; 2] }),
+            None,
+        ];
+        let s = LightTraceSettings {
+            paths: 200_000,
+            batch_size: 7_000,
+            rr_depth: 2,
+            seed: 21,
+            ..Default::default()
+        };
+        let want = reference(&scene, &targets, &s);
+        let runs: Vec<LightTraceOutput> = [1, 2, 3]
+            .iter()
+            .map(|&n| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(n)
+                    .build()
+                    .unwrap()
+                    .install(|| trace(&scene, &targets, &s, &|| {}))
+            })
+            .collect();
+        for (k, w) in want.iter().take(2).enumerate() {
+            let (w, got) = (w.as_ref().unwrap(), runs[0].maps[k].as_ref().unwrap());
+            for (a, b) in [(&w.direct, &got.direct), (&w.indirect, &got.indirect)] {
+                let max = a.iter().flatten().fold(0.0f64, |m, &x| m.max(x));
+                assert!(max > 0.0, "shape {k}: nothing deposited");
+                // Same random numbers and arithmetic: only the fixed-point rounding (≤ 2⁻²⁵ of
+                // the reference deposit per deposit) and the f64 summation order differ.
+                for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+                    assert!((x - y).abs() <= 1e-6 * max, "shape {k}: {x} vs {y}");
+                }
+            }
+            for r in &runs[1..] {
+                let o = r.maps[k].as_ref().unwrap();
+                assert_eq!(
+                    (&o.direct, &o.indirect),
+                    (&got.direct, &got.indirect),
+                    "thread count changed the result"
+                );
+            }
+        }
     }
 }
