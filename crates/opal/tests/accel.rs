@@ -3,7 +3,7 @@
 //! visibility inside a convex mesh with `spawn_ray_to`.
 
 use opal::accel::scenes::{cornell_box, mesh_triangles, random_soup, sphere_mesh};
-use opal::accel::{BruteForce, Bvh, intersect_triangle_mt, offset_ray_origin, spawn_ray_to};
+use opal::accel::{BruteForce, Bvh, TinyAccel, intersect_triangle_mt, offset_ray_origin, spawn_ray_to};
 use opal::geometry::{Ray, TriangleMesh};
 use opal::math::Vec3;
 use opal::sampling::Rng;
@@ -133,6 +133,42 @@ fn bvh_matches_brute_force_in_cornell_box() {
     assert!(hits > 5_000 && hits < 20_000, "{hits}");
 }
 
+/// The flat SIMD structure of tiny scenes gives exactly the brute force's hits (same `t`,
+/// barycentrics and — ties included, both keep the lowest index — triangle), on the Cornell box
+/// from inside and on random soups with axis-aligned rays and finite `tmax`.
+#[test]
+fn tiny_accel_matches_brute_force() {
+    let mut cases = vec![(cornell_box(), 0.99f32)];
+    for (n, seed) in [(5usize, 1u64), (32, 2), (64, 3), (100, 4)] {
+        cases.push((random_soup(n, 0.6, seed), 1.5));
+    }
+    for (k, (mut tris, span)) in cases.into_iter().enumerate() {
+        tris.push([Vec3::ZERO, Vec3::X, Vec3::X * 2.0]); // degenerate: never hit
+        let tiny = TinyAccel::new(tris.clone());
+        let bf = BruteForce::new(tris.clone());
+        assert_eq!(tiny.len(), tris.len());
+        let mut hits = 0;
+        for i in 0..20_000u64 {
+            let mut rng = Rng::new(13, k as u64, i);
+            let o = (Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0) * span;
+            let mut d = random_dir(&mut rng);
+            if i % 10 == 0 {
+                let a = (i / 10 % 3) as usize;
+                d = Vec3::ZERO;
+                d[a] = if i % 20 == 0 { 1.0 } else { -1.0 };
+            }
+            let tmax = if i % 3 == 0 { rng.next_f32() * 2.0 } else { f32::INFINITY };
+            let ray = Ray { o, d, tmax };
+            let want = bf.intersect(&ray);
+            assert_eq!(tiny.intersect(&ray), want, "case {k} ray {ray:?}");
+            assert_eq!(tiny.intersect_portable(&ray), want, "case {k} ray {ray:?}");
+            assert_eq!(tiny.occluded(&ray), bf.occluded(&ray), "case {k} ray {ray:?}");
+            hits += want.is_some() as u32;
+        }
+        assert!(hits > 200, "case {k}: {hits} hits (the rays must probe the triangles)");
+    }
+}
+
 /// Points exactly on shared edges and vertices of a closed mesh, as seen from inside.
 fn edge_and_vertex_targets(mesh: &TriangleMesh) -> Vec<Vec3> {
     let mut targets = mesh.positions.clone();
@@ -153,8 +189,10 @@ fn edge_and_vertex_targets(mesh: &TriangleMesh) -> Vec<Vec3> {
 /// Rays from inside a closed mesh aimed at its vertices and edges must all hit something.
 /// Counts leaks for the watertight test (BVH and brute force; must be 0) and, for information,
 /// for Möller–Trumbore.
-fn leak_count(mesh: &TriangleMesh, origins: &[Vec3]) -> (usize, usize, usize, usize) {
+fn leak_count(mesh: &TriangleMesh, origins: &[Vec3]) -> (usize, usize, usize, usize, usize) {
     let tris = mesh_triangles(mesh);
+    let tiny = TinyAccel::new(tris.clone());
+    let mut leak_tiny = 0;
     let bvh = Bvh::new(tris.clone());
     let bf = BruteForce::new(tris.clone());
     let targets = edge_and_vertex_targets(mesh);
@@ -166,10 +204,12 @@ fn leak_count(mesh: &TriangleMesh, origins: &[Vec3]) -> (usize, usize, usize, us
             leak_bvh += bvh.intersect(&ray).is_none() as usize;
             leak_bvh += !bvh.occluded(&ray) as usize;
             leak_bf += bf.intersect(&ray).is_none() as usize;
+            leak_tiny += tiny.intersect(&ray).is_none() as usize;
+            leak_tiny += !tiny.occluded(&ray) as usize;
             leak_mt += !tris.iter().any(|t| intersect_triangle_mt(&ray, t, f32::INFINITY).is_some()) as usize;
         }
     }
-    (n, leak_bvh, leak_bf, leak_mt)
+    (n, leak_bvh, leak_bf, leak_mt, leak_tiny)
 }
 
 #[test]
@@ -189,9 +229,9 @@ fn watertight_on_closed_meshes() {
             let mut rng = Rng::new(5, k as u64, i);
             origins.push(offset + random_in_ball(&mut rng, 0.75));
         }
-        let (n, bvh, bf, mt) = leak_count(&mesh, &origins);
+        let (n, bvh, bf, mt, tiny) = leak_count(&mesh, &origins);
         assert!(n > 3000);
-        assert_eq!((bvh, bf), (0, 0), "watertight test leaked (of {n} rays), case {k}");
+        assert_eq!((bvh, bf, tiny), (0, 0, 0), "watertight test leaked (of {n} rays), case {k}");
         total_mt += mt;
     }
     // The rays really probe edges and vertices: a non-watertight test leaks on them.
@@ -213,8 +253,8 @@ fn watertight_cube_edges() {
     for i in 0..8u64 {
         origins.push(random_in_ball(&mut Rng::new(9, 0, i), 0.9));
     }
-    let (_, bvh, bf, _) = leak_count(&mesh, &origins);
-    assert_eq!((bvh, bf), (0, 0));
+    let (_, bvh, bf, _, tiny) = leak_count(&mesh, &origins);
+    assert_eq!((bvh, bf, tiny), (0, 0, 0));
 }
 
 /// Surface points of triangle `i` from barycentrics, and geometric normal.

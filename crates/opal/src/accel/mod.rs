@@ -3,14 +3,18 @@
 //! * [`triangle`]: the watertight ray–triangle test (Woop et al. 2013) every structure uses, and
 //!   robust ray spawning ([`offset_ray_origin`], [`spawn_ray`], [`spawn_ray_to`]).
 //! * [`Bvh`]: the acceleration structure the engine uses (binned SAH BVH, see [`bvh`]).
+//! * [`TinyAccel`]: every triangle tested eight at a time (SIMD), for scenes of at most
+//!   [`tiny::TINY_MAX`] triangles (see [`tiny`]).
 //! * [`scenes`]: deterministic meshes and soups for tests and benchmarks.
 //! * [`BruteForce`] tests every triangle; it is the reference the BVH is tested against.
 
 pub mod bvh;
 pub mod scenes;
+pub mod tiny;
 pub mod triangle;
 
 pub use bvh::Bvh;
+pub use tiny::TinyAccel;
 pub use triangle::{TriRay, intersect_triangle, offset_ray_origin, spawn_ray, spawn_ray_to};
 
 use crate::geometry::Ray;

@@ -12,17 +12,44 @@
 //! [`TransportMode::Importance`] and Russian roulette from `rr_depth`.
 //!
 //! Determinism: paths are split into fixed batches of `batch_size`; batch `b` draws its numbers
-//! from `Rng::new(seed, 0x4c54, b)` and accumulates into its own f64 maps; the batch maps are
-//! merged in batch order, so the result is identical for any thread count.
+//! from `Rng::new(seed, 0x4c54, b)`. The result depends on `(seed, batch_size, paths)` only,
+//! never on the thread count.
+//!
+//! **Accumulation** (fixed point). Up to `MAX_WORKERS` (8) workers pull batch indices from a
+//! shared counter and add their deposits into their own integer maps, which live for the whole
+//! pass (no per-batch maps to zero and merge); the worker maps are summed at the end. Integer
+//! addition is associative and commutative, so which worker traced which batch does not matter.
+//! A deposit `v = β_c / (N · A_texel)` is stored as `round(β_c · f)` units (`i64`), with
+//! `f = 2²⁴ · A_min / (A_texel · β_ref)` per triangle (`A_min` = smallest texel area of the shape,
+//! `β_ref = max_l max_c Φ_l,c / pmf_l` = the initial weight of a path from the brightest light
+//! per pick): an unscattered path's deposit into the shape's smallest texel is 2²⁴ units.
+//! *Quantisation error*: ≤ ½ unit per deposit, i.e. a relative error ≤ 2⁻²⁵ (3·10⁻⁸) ×
+//! (β_ref/β) × (A_texel/A_min) per deposit — far below the Monte-Carlo noise (the test below checks
+//! agreement with a plain f64 pass to 10⁻⁶). *Overflow*: a texel's sum would need ~2³⁸ deposits
+//! of the reference size; the exact (u128) sum of |units| per shape is checked at the end, and if
+//! it reaches 2⁶³ the pass is traced again with a coarser unit (deterministic; never seen).
+//!
+//! **Speed** (see `docs/performance.md`): per-triangle hit data precomputed once per pass (unit
+//! geometric normal, corner uvs and normals, deposit factor, map size, material), so a hit costs
+//! no `Scene::interaction`; Lambertian materials (the de-lighting scenes) are sampled in place
+//! (the arithmetic of `Lambert::sample` and `BsdfSample::weight`, same random numbers as the
+//! generic `Scene::bsdf` path, which other materials take), and their albedo lookup is applied
+//! after the next ray is traced so its cache miss overlaps the traversal; deposits go through a
+//! short per-worker queue that prefetches their texel. Small scenes are traversed by
+//! [`crate::accel::TinyAccel`] (through `Scene::intersect_hit`).
 //!
 //! Tests (below): a quad under a point light (E = I cos θ / d², analytic) and a quad under a
 //! small area light against a quadrature of ∫ L cos dω; indirect light in a closed furnace-like
-//! box against the path tracer's estimate; thread-count independence.
+//! box against the path tracer's estimate; thread-count independence; the fast paths and the
+//! fixed-point sums against the generic f64 pass (a bitmap-textured floor, a two-sided wall,
+//! Russian roulette) to 10⁻⁶, identical for 1, 2 and 3 threads.
 
 use crate::bsdf::{Bxdf, TransportMode};
-use crate::math::Vec2;
-use crate::sampling::Rng;
+use crate::math::{Frame, INV_PI, Vec2, Vec3};
+use crate::sampling::{Rng, square_to_cosine_hemisphere, square_to_cosine_hemisphere_pdf};
 use crate::scene::Scene;
+use crate::scene::build::eval_texture;
+use crate::scene::desc::{BsdfDesc, TextureDesc};
 use crate::spectrum::Spectrum;
 use rayon::prelude::*;
 
@@ -97,6 +124,93 @@ fn empty_maps(targets: &[Option<IrradianceTarget>]) -> Vec<Option<IrradianceMaps
         .collect()
 }
 
+/// Units of one deposit of the reference size (see [`FixedPoint`]): 2²⁴.
+const REF_UNITS: f64 = (1u64 << 24) as f64;
+
+/// Fixed-point scale of one pass (see the module docs, "Accumulation").
+///
+/// A deposit of value `v = β_c / (N · A_texel)` is stored as the integer `round(β_c · f)`
+/// with `f = 2²⁴ · A_min / (A_texel · β_ref)` per triangle (`A_min` = the smallest texel area
+/// of the shape, `β_ref` = the largest initial path weight of any light, `max_c Φ_l,c / pmf_l`):
+/// an unscattered path's deposit into the shape's smallest texel is 2²⁴ units. The texel's
+/// value is its integer sum times `β_ref / (2²⁴ · A_min · N)`.
+#[derive(Clone, Debug)]
+struct FixedPoint {
+    /// Per triangle of the soup: units per unit of β (0 = no deposit).
+    factor: Vec<f64>,
+    /// Per shape: W·m⁻² per unit.
+    unit: Vec<f64>,
+}
+
+impl FixedPoint {
+    fn new(scene: &Scene, targets: &[Option<IrradianceTarget>], paths: u64, shift: i32) -> FixedPoint {
+        let beta_ref = scene
+            .light_sampler()
+            .map(|ls| {
+                scene
+                    .lights
+                    .iter()
+                    .enumerate()
+                    .map(|(i, l)| {
+                        let pmf = ls.pmf(i) as f64;
+                        if pmf > 0.0 { l.power().max_component() as f64 / pmf } else { 0.0 }
+                    })
+                    .fold(0.0f64, f64::max)
+            })
+            .filter(|b| b.is_finite() && *b > 0.0)
+            .unwrap_or(1.0);
+        let units = REF_UNITS * 2f64.powi(shift);
+        let n_prims = scene.shapes.last().map_or(0, |s| s.first_prim as usize + s.mesh.triangle_count());
+        let mut factor = vec![0.0; n_prims];
+        let mut unit = vec![0.0; scene.shapes.len()];
+        for (k, (shape, t)) in scene.shapes.iter().zip(targets).enumerate() {
+            let Some(t) = t else { continue };
+            let a_min =
+                t.texel_area.iter().copied().filter(|&a| a > 0.0).fold(f32::INFINITY, f32::min) as f64;
+            if !a_min.is_finite() {
+                continue;
+            }
+            unit[k] = beta_ref / (units * a_min * paths.max(1) as f64);
+            for (j, &a) in t.texel_area.iter().enumerate().take(shape.mesh.triangle_count()) {
+                if a > 0.0 {
+                    factor[shape.first_prim as usize + j] = units * a_min / (a as f64 * beta_ref);
+                }
+            }
+        }
+        FixedPoint { factor, unit }
+    }
+}
+
+/// Integer irradiance sums of one shape (one worker).
+struct ShapeAcc {
+    width: usize,
+    /// `[r, g, b]` per texel, flat (a zeroed `Vec<i64>` is allocated as fresh zero pages).
+    direct: Vec<i64>,
+    indirect: Vec<i64>,
+    /// Sum of |units| of every deposit (exact): bounds every texel's sum.
+    total: u128,
+}
+
+type Acc = Vec<Option<ShapeAcc>>;
+
+fn empty_acc(targets: &[Option<IrradianceTarget>]) -> Acc {
+    targets
+        .iter()
+        .map(|t| {
+            t.as_ref().map(|t| ShapeAcc {
+                width: t.width,
+                direct: vec![0; 3 * t.width * t.height],
+                indirect: vec![0; 3 * t.width * t.height],
+                total: 0,
+            })
+        })
+        .collect()
+}
+
+/// Largest number of accumulators (one per worker): bounds the memory on machines with many
+/// logical CPUs.
+const MAX_WORKERS: usize = 8;
+
 /// Traces `s.paths` light paths and returns the irradiance deposited into the maps of the shapes
 /// that have a target (`targets[shape]`). The shapes' `uv`s (`scene.interaction`) locate texels:
 /// texel `(floor(u·W), floor(v·H))`, clamped. `on_batch` is called after each batch.
@@ -106,75 +220,216 @@ pub fn trace(
     s: &LightTraceSettings,
     on_batch: &(dyn Fn() + Sync),
 ) -> LightTraceOutput {
-    let mut maps = empty_maps(targets);
     let Some(sampler) = scene.light_sampler() else {
-        return LightTraceOutput { maps, paths: 0, nonfinite: 0 };
+        return LightTraceOutput { maps: empty_maps(targets), paths: 0, nonfinite: 0 };
     };
+    let mut shift = 0;
+    loop {
+        let fp = FixedPoint::new(scene, targets, s.paths, shift);
+        match trace_fixed(scene, sampler, targets, s, &fp, on_batch) {
+            Ok(out) => return out,
+            // Some shape's deposits summed to ≥ 2⁶³ units: a texel may have overflowed. Trace
+            // again with a coarser unit (never seen in practice; the result stays deterministic
+            // since the decision depends on exact integer sums only).
+            Err(bits) => shift -= bits,
+        }
+    }
+}
+
+/// One pass at a fixed-point scale; `Err(bits)` when the scale must shrink by `2^bits`.
+fn trace_fixed(
+    scene: &Scene,
+    sampler: &crate::light::LightSampler,
+    targets: &[Option<IrradianceTarget>],
+    s: &LightTraceSettings,
+    fp: &FixedPoint,
+    on_batch: &(dyn Fn() + Sync),
+) -> Result<LightTraceOutput, i32> {
+    use std::sync::atomic::{AtomicU64, Ordering};
     let batch = s.batch_size.max(1);
     let n_batches = s.paths.div_ceil(batch);
-    let inv_n = 1.0 / s.paths.max(1) as f64;
-    let mut nonfinite = 0u64;
-    // waves bound the memory (one set of maps per batch in flight, at most 8: machines that
-    // report many logical CPUs otherwise multiply the map memory); the wave size does not
-    // change the result since batches are merged in index order.
-    let wave = (2 * rayon::current_num_threads().max(1) as u64).min(8).min(n_batches) as usize;
-    // One accumulator per batch in flight, allocated once and reused: merging a batch into the
-    // result also zeroes its accumulator (one pass over memory instead of alloc + zero + merge).
-    let mut accs: Vec<Vec<Option<IrradianceMaps>>> = (0..wave).map(|_| empty_maps(targets)).collect();
-    let mut b0 = 0;
-    while b0 < n_batches {
-        let b1 = (b0 + wave as u64).min(n_batches);
-        let bad: Vec<u64> = accs[..(b1 - b0) as usize]
-            .par_iter_mut()
-            .enumerate()
-            .map(|(i, acc)| {
-                let b = b0 + i as u64;
-                let mut bad = 0u64;
+    // Workers pull batch indices from a counter and add into their own accumulator for the
+    // whole pass. Integer sums do not depend on the order of the additions, so which worker
+    // traced which batch does not change the result.
+    let workers = rayon::current_num_threads().clamp(1, MAX_WORKERS).min(n_batches.max(1) as usize);
+    let next = AtomicU64::new(0);
+    let prims = prims(scene, targets, fp);
+    let results: Vec<(Acc, u64)> = (0..workers)
+        .into_par_iter()
+        .map(|_| {
+            let mut sink = Sink::new(empty_acc(targets));
+            let mut bad = 0u64;
+            loop {
+                let b = next.fetch_add(1, Ordering::Relaxed);
+                if b >= n_batches {
+                    break;
+                }
                 let start = b * batch;
                 let end = ((b + 1) * batch).min(s.paths);
                 let mut rng = Rng::new(s.seed, 0x4c54, b);
                 for _ in start..end {
-                    trace_path(scene, sampler, targets, acc, &mut rng, s, inv_n, &mut bad);
+                    trace_path(scene, sampler, &prims, &mut sink, &mut rng, s, &mut bad);
                 }
                 on_batch();
-                bad
-            })
-            .collect();
-        // merge in batch order (deterministic), per shape in parallel
-        for (i, bad) in bad.into_iter().enumerate() {
-            nonfinite += bad;
-            maps.par_iter_mut().zip(accs[i].par_iter_mut()).for_each(|(m, p)| {
-                if let (Some(m), Some(p)) = (m.as_mut(), p.as_mut()) {
-                    for (a, b) in m.direct.iter_mut().zip(p.direct.iter_mut()) {
-                        for c in 0..3 {
-                            a[c] += b[c];
-                        }
-                        *b = [0.0; 3];
-                    }
-                    for (a, b) in m.indirect.iter_mut().zip(p.indirect.iter_mut()) {
-                        for c in 0..3 {
-                            a[c] += b[c];
-                        }
-                        *b = [0.0; 3];
-                    }
-                }
-            });
+            }
+            (sink.finish(), bad)
+        })
+        .collect();
+    let nonfinite = results.iter().map(|r| r.1).sum();
+    let mut accs: Vec<Acc> = results.into_iter().map(|r| r.0).collect();
+    // overflow check: the exact sum of |units| of a shape bounds each of its texels' sums
+    for k in 0..targets.len() {
+        let total: u128 = accs.iter().filter_map(|a| a[k].as_ref()).map(|m| m.total).sum();
+        if total >= 1u128 << 63 {
+            let bits = (128 - total.leading_zeros()) as i32 - 62;
+            return Err(bits.max(1));
         }
-        b0 = b1;
     }
-    LightTraceOutput { maps, paths: s.paths, nonfinite }
+    // reduce: wrapping integer sums (exact since no texel's true sum reaches 2⁶³), then scale
+    let (first, rest) = accs.split_first_mut().expect("at least one worker");
+    let maps = first
+        .par_iter_mut()
+        .enumerate()
+        .map(|(k, m)| {
+            let m = m.take()?;
+            let unit = fp.unit[k];
+            let reduce = |own: Vec<i64>, direct: bool| -> Vec<[f64; 3]> {
+                own.par_chunks_exact(3)
+                    .enumerate()
+                    .map(|(i, v)| {
+                        let mut sum = [v[0], v[1], v[2]];
+                        for a in rest.iter() {
+                            let o = a[k].as_ref().expect("same targets");
+                            let o = if direct {
+                                &o.direct[3 * i..3 * i + 3]
+                            } else {
+                                &o.indirect[3 * i..3 * i + 3]
+                            };
+                            for c in 0..3 {
+                                sum[c] = sum[c].wrapping_add(o[c]);
+                            }
+                        }
+                        sum.map(|x| x as f64 * unit)
+                    })
+                    .collect()
+            };
+            let height = m.direct.len() / (3 * m.width.max(1));
+            let width = m.width;
+            let direct = reduce(m.direct, true);
+            let indirect = reduce(m.indirect, false);
+            Some(IrradianceMaps { width, height, direct, indirect })
+        })
+        .collect();
+    Ok(LightTraceOutput { maps, paths: s.paths, nonfinite })
 }
 
-#[allow(clippy::too_many_arguments)]
+/// Material of a triangle as the light tracer needs it.
+#[derive(Clone, Copy)]
+enum Mat<'a> {
+    /// Lambertian with this reflectance; `two_sided` = wrapped in `twosided`.
+    Diffuse { tex: &'a TextureDesc, two_sided: bool },
+    /// Anything else: `Scene::bsdf`.
+    Generic,
+}
+
+/// Per-triangle data precomputed for the hit reconstruction (same formulas as
+/// `Scene::interaction` and `Scene::bsdf`, evaluated once per triangle instead of per hit).
+#[derive(Clone, Copy)]
+struct Prim<'a> {
+    /// Unit geometric normal.
+    ng: Vec3,
+    /// Corner uvs (zeros without uvs).
+    uv: [Vec2; 3],
+    /// Corner shading normals, when the mesh has them.
+    normals: Option<[Vec3; 3]>,
+    shape: u32,
+    /// Fixed-point units per unit of β for a deposit (0 = no deposit).
+    factor: f64,
+    /// Deposit map size (texels).
+    width: u32,
+    height: u32,
+    mat: Mat<'a>,
+}
+
+fn prims<'a>(scene: &'a Scene, targets: &[Option<IrradianceTarget>], fp: &FixedPoint) -> Vec<Prim<'a>> {
+    let mut out = Vec::with_capacity(fp.factor.len());
+    for (k, sh) in scene.shapes.iter().enumerate() {
+        let m = &sh.mesh;
+        let (desc, two_sided) = match &sh.bsdf {
+            BsdfDesc::TwoSided(inner) => (inner.as_ref(), true),
+            d => (d, false),
+        };
+        let mat = match desc {
+            BsdfDesc::Diffuse { reflectance } => Mat::Diffuse { tex: reflectance, two_sided },
+            _ => Mat::Generic,
+        };
+        let (width, height) = targets[k].as_ref().map_or((0, 0), |t| (t.width as u32, t.height as u32));
+        for (j, idx) in m.indices.iter().enumerate() {
+            let [i0, i1, i2] = idx.map(|i| i as usize);
+            let (p0, p1, p2) = (m.positions[i0], m.positions[i1], m.positions[i2]);
+            out.push(Prim {
+                ng: (p1 - p0).cross(p2 - p0).normalize(),
+                uv: if m.uvs.is_empty() { [Vec2::ZERO; 3] } else { [m.uvs[i0], m.uvs[i1], m.uvs[i2]] },
+                normals: (!m.normals.is_empty()).then(|| [m.normals[i0], m.normals[i1], m.normals[i2]]),
+                shape: k as u32,
+                factor: fp.factor[sh.first_prim as usize + j],
+                width,
+                height,
+                mat,
+            });
+        }
+    }
+    out
+}
+
+/// The scattering weight of the last vertex, applied after the next ray is traced so that the
+/// texture lookup's cache miss overlaps the traversal.
+enum Weight<'a> {
+    Known(Spectrum),
+    /// Lambert: `(reflectance(uv) · 1/π) · (|cos θi| / pdf)` (as `BsdfSample::weight`).
+    Lambert {
+        tex: &'a TextureDesc,
+        uv: Vec2,
+        ratio: f32,
+    },
+}
+
+impl Weight<'_> {
+    #[inline]
+    fn get(self) -> Spectrum {
+        match self {
+            Weight::Known(w) => w,
+            Weight::Lambert { tex, uv, ratio } => (eval_texture(tex, uv) * INV_PI) * ratio,
+        }
+    }
+}
+
+/// Hints the cache lines of a bitmap lookup at `uv` (no effect on results).
+#[inline]
+fn prefetch_texture(tex: &TextureDesc, uv: Vec2) {
+    if let TextureDesc::Bitmap(b) = tex {
+        let img = &*b.image;
+        if img.width == 0 || img.height == 0 || !(uv.x.is_finite() && uv.y.is_finite()) {
+            return;
+        }
+        let x = ((uv.x * img.width as f32) as i64).clamp(0, img.width as i64 - 1) as usize;
+        let y = ((uv.y * img.height as f32 - 0.5) as i64).clamp(0, img.height as i64 - 1) as usize;
+        let i = y * img.width + x;
+        prefetch(&img.data[i]);
+        if let Some(v) = img.data.get(i + img.width) {
+            prefetch(v);
+        }
+    }
+}
+
 #[inline]
 fn trace_path(
     scene: &Scene,
     sampler: &crate::light::LightSampler,
-    targets: &[Option<IrradianceTarget>],
-    acc: &mut [Option<IrradianceMaps>],
+    prims: &[Prim],
+    sink: &mut Sink,
     rng: &mut Rng,
     s: &LightTraceSettings,
-    inv_n: f64,
     bad: &mut u64,
 ) {
     let (li, pmf, _) = sampler.sample(rng.next_f32());
@@ -183,91 +438,171 @@ fn trace_path(
     if pmf <= 0.0 || es.pdf_pos <= 0.0 || es.pdf_dir <= 0.0 {
         return;
     }
-    let cos = if es.n == crate::math::Vec3::ZERO { 1.0 } else { es.ray.d.dot(es.n).abs() };
+    let cos = if es.n == Vec3::ZERO { 1.0 } else { es.ray.d.dot(es.n).abs() };
     let mut beta = es.le * (cos / (pmf * es.pdf_pos * es.pdf_dir));
     let mut ray = es.ray;
     // emitted rays of area lights start on the surface: offset them
-    if es.n != crate::math::Vec3::ZERO {
+    if es.n != Vec3::ZERO {
         ray = super::spawn_ray(ray.o, es.n, ray.d);
     }
     let mode = TransportMode::Importance;
     let mut depth = 0i32;
     // The texel of a deposit is a random location in maps of up to millions of texels: a cache
-    // miss. Deposits are therefore deferred by one segment: the texel's cache line is prefetched
-    // when it is found and the addition is done after the next ray is traced (same values, same
-    // order of additions, so the result is unchanged).
-    let mut pending: Option<Pending> = None;
-    while let Some(si) = scene.intersect(&ray) {
-        if let Some(p) = pending.take() {
-            p.apply(acc);
-        }
-        depth += 1;
-        let wo = -ray.d;
-        let front = wo.dot(si.ng) > 0.0;
-        let shape = si.shape as usize;
-        if front {
-            if let (Some(t), Some(m)) = (&targets[shape], acc[shape].as_ref()) {
-                let local = (si.prim - scene.shapes[shape].first_prim) as usize;
-                let ta = t.texel_area.get(local).copied().unwrap_or(0.0);
-                if ta > 0.0 {
-                    let x = ((si.uv.x * t.width as f32) as i64).clamp(0, t.width as i64 - 1) as usize;
-                    let y = ((si.uv.y * t.height as f32) as i64).clamp(0, t.height as i64 - 1) as usize;
-                    let e = beta.to_f64();
-                    if e.iter().all(|v| v.is_finite()) {
-                        let k = inv_n / ta as f64;
-                        let index = y * t.width + x;
-                        let direct = depth == 1;
-                        prefetch(if direct { &m.direct[index] } else { &m.indirect[index] });
-                        pending = Some(Pending { shape, index, direct, value: e.map(|v| v * k) });
-                    } else {
-                        *bad += 1;
-                    }
+    // and TLB miss. Deposits therefore go through the worker's queue ([`Sink`]), which prefetches
+    // them and adds them [`QUEUE`] deposits later (integer sums: the order of additions does not
+    // matter). Likewise the albedo lookup of a Lambertian vertex (its sampled direction does not depend on the albedo), and with it the Russian
+    // roulette, which consumes its random number after the vertex's direction sample as before:
+    // same random numbers, same result; a path killed by the roulette has traced one ray for
+    // nothing (from `rr_depth` on only).
+    let mut weight: Option<Weight> = None;
+    loop {
+        let hit = scene.intersect_hit(&ray);
+        if let Some(w) = weight.take() {
+            let w = w.get();
+            if w.is_black() {
+                break;
+            }
+            beta *= w;
+            if s.rr_depth >= 0 && depth >= s.rr_depth {
+                let q = beta_survival(beta, es.le, cos, pmf, es.pdf_pos, es.pdf_dir);
+                if rng.next_f32() >= q {
+                    break;
                 }
+                beta *= 1.0 / q;
+            }
+        }
+        let Some(h) = hit else { break };
+        depth += 1;
+        let pr = &prims[h.prim as usize];
+        let wo = -ray.d;
+        let front = wo.dot(pr.ng) > 0.0;
+        let b0 = 1.0 - h.b1 - h.b2;
+        let uv = pr.uv[0] * b0 + pr.uv[1] * h.b1 + pr.uv[2] * h.b2;
+        if front && pr.factor > 0.0 {
+            let (w, hgt) = (pr.width as usize, pr.height as usize);
+            let x = ((uv.x * w as f32) as i64).clamp(0, w as i64 - 1) as usize;
+            let y = ((uv.y * hgt as f32) as i64).clamp(0, hgt as i64 - 1) as usize;
+            let e = beta.to_f64();
+            if e.iter().all(|v| v.is_finite()) {
+                let shape = pr.shape as usize;
+                let index = 3 * (y * w + x);
+                let direct = depth == 1;
+                // round half away from zero (`as` saturates: an absurd deposit then shows in
+                // the overflow check)
+                let value = e.map(|v| {
+                    let q = v * pr.factor;
+                    (q + 0.5f64.copysign(q)) as i64
+                });
+                sink.push(Pending { shape, index, direct, value });
+            } else {
+                *bad += 1;
             }
         }
         if s.max_depth >= 0 && depth >= s.max_depth {
             break;
         }
-        let (frame, bsdf) = scene.bsdf(&si, wo);
-        let wo_l = frame.to_local(wo);
-        let uc = rng.next_f32();
-        let u: Vec2 = rng.next_2d();
-        let Some(bs) = bsdf.sample(wo_l, uc, u, mode) else { break };
-        let w = bs.weight();
-        if w.is_black() {
-            break;
-        }
-        beta *= w;
-        let wi = frame.to_world(bs.wi);
-        ray = super::spawn_ray(si.p, si.ng, wi);
-        if s.rr_depth >= 0 && depth >= s.rr_depth {
-            let q = beta_survival(beta, es.le, cos, pmf, es.pdf_pos, es.pdf_dir);
-            if rng.next_f32() >= q {
-                break;
+        let p = ray.at(h.t);
+        match pr.mat {
+            Mat::Diffuse { tex, two_sided } => {
+                let ns = match pr.normals {
+                    None => pr.ng,
+                    Some([n0, n1, n2]) => {
+                        let n = n0 * b0 + n1 * h.b1 + n2 * h.b2;
+                        let l = n.length();
+                        if l > 0.0 { n / l } else { pr.ng }
+                    }
+                };
+                let n = if two_sided && wo.dot(pr.ng) < 0.0 { -ns } else { ns };
+                let frame = Frame::from_normal(n);
+                // `Lambert::sample`, in world space
+                let _uc = rng.next_f32(); // drawn for the generic sampler: same streams
+                let u: Vec2 = rng.next_2d();
+                if wo.dot(frame.n) <= 0.0 {
+                    break;
+                }
+                let wi = square_to_cosine_hemisphere(u);
+                let pdf = square_to_cosine_hemisphere_pdf(wi);
+                if pdf <= 0.0 {
+                    break;
+                }
+                prefetch_texture(tex, uv);
+                weight = Some(Weight::Lambert { tex, uv, ratio: wi.z.abs() / pdf });
+                ray = super::spawn_ray(p, pr.ng, frame.to_world(wi));
             }
-            beta *= 1.0 / q;
+            Mat::Generic => {
+                let si = scene.interaction(&ray, &h);
+                let (frame, bsdf) = scene.bsdf(&si, wo);
+                let wo_l = frame.to_local(wo);
+                let uc = rng.next_f32();
+                let u: Vec2 = rng.next_2d();
+                let Some(bs) = bsdf.sample(wo_l, uc, u, mode) else { break };
+                weight = Some(Weight::Known(bs.weight()));
+                ray = super::spawn_ray(si.p, si.ng, frame.to_world(bs.wi));
+            }
         }
-    }
-    if let Some(p) = pending {
-        p.apply(acc);
     }
 }
 
-/// A deposit waiting for its cache line (see `trace_path`).
+/// Deposits in flight per worker: the queue length of [`Sink`].
+const QUEUE: usize = 32;
+
+/// A worker's accumulator behind a queue of [`QUEUE`] deposits: a deposit's texel is
+/// prefetched when it is pushed and the addition happens when it leaves the queue, about ten
+/// paths later, so the memory latency overlaps the tracing instead of stalling it.
+struct Sink {
+    acc: Acc,
+    ring: [Pending; QUEUE],
+    head: usize,
+    len: usize,
+}
+
+impl Sink {
+    fn new(acc: Acc) -> Sink {
+        Sink { acc, ring: [Pending::default(); QUEUE], head: 0, len: 0 }
+    }
+    #[inline]
+    fn push(&mut self, p: Pending) {
+        if let Some(m) = self.acc[p.shape].as_ref() {
+            prefetch(if p.direct { &m.direct[p.index] } else { &m.indirect[p.index] });
+        }
+        if self.len == QUEUE {
+            let old = std::mem::replace(&mut self.ring[self.head], p);
+            self.head = (self.head + 1) % QUEUE;
+            old.apply(&mut self.acc);
+        } else {
+            self.ring[(self.head + self.len) % QUEUE] = p;
+            self.len += 1;
+        }
+    }
+    /// Applies the queued deposits and returns the accumulator.
+    fn finish(mut self) -> Acc {
+        for k in 0..self.len {
+            let p = self.ring[(self.head + k) % QUEUE];
+            p.apply(&mut self.acc);
+        }
+        self.acc
+    }
+}
+
+/// A deposit: texel, map and integer value.
+#[derive(Clone, Copy, Default)]
 struct Pending {
     shape: usize,
+    /// Index of the texel's red channel in the flat map.
     index: usize,
     direct: bool,
-    value: [f64; 3],
+    value: [i64; 3],
 }
 
 impl Pending {
     #[inline]
-    fn apply(self, acc: &mut [Option<IrradianceMaps>]) {
+    fn apply(self, acc: &mut Acc) {
         if let Some(m) = acc[self.shape].as_mut() {
-            let cell = if self.direct { &mut m.direct[self.index] } else { &mut m.indirect[self.index] };
+            let i = self.index;
+            let cell = if self.direct { &mut m.direct[i..i + 3] } else { &mut m.indirect[i..i + 3] };
             for (a, v) in cell.iter_mut().zip(self.value) {
-                *a += v;
+                *a = a.wrapping_add(v);
+                m.total += v.unsigned_abs() as u128;
             }
         }
     }
@@ -300,7 +635,7 @@ mod tests {
     use super::*;
     use crate::geometry::TriangleMesh;
     use crate::math::{PI, Vec3};
-    use crate::scene::desc::{AreaEmitterDesc, BsdfDesc, EmitterDesc, SceneDesc, ShapeDesc, TextureDesc};
+    use crate::scene::desc::{AreaEmitterDesc, EmitterDesc, SceneDesc, ShapeDesc};
 
     /// Square [-h,h]² in the plane y = 0 facing +y with uv = ((x+h)/2h, (z+h)/2h).
     fn floor_quad(h: f32) -> TriangleMesh {
@@ -497,5 +832,204 @@ mod tests {
         // relative std of the mean ≈ 1/sqrt(N) × O(1) ⇒ 1 % is > 5σ at N = 400 k.
         let expect = pi * le as f64 * rho as f64 / (1.0 - rho as f64);
         assert!((indirect / expect - 1.0).abs() < 0.01, "indirect {indirect} vs {expect}");
+    }
+
+    /// The pass as it was before the fast paths: generic hit reconstruction (`Scene::intersect`)
+    /// and BSDFs (`Scene::bsdf`), f64 sums in path order, one thread; same random streams.
+    fn reference(
+        scene: &Scene,
+        targets: &[Option<IrradianceTarget>],
+        s: &LightTraceSettings,
+    ) -> Vec<Option<IrradianceMaps>> {
+        let mut maps = empty_maps(targets);
+        let sampler = scene.light_sampler().unwrap();
+        let inv_n = 1.0 / s.paths as f64;
+        for b in 0..s.paths.div_ceil(s.batch_size) {
+            let mut rng = Rng::new(s.seed, 0x4c54, b);
+            for _ in b * s.batch_size..((b + 1) * s.batch_size).min(s.paths) {
+                let (li, pmf, _) = sampler.sample(rng.next_f32());
+                let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
+                let Some(es) = scene.lights[li].sample_le(u_pos, u_dir) else { continue };
+                let cos = es.ray.d.dot(es.n).abs();
+                let mut beta = es.le * (cos / (pmf * es.pdf_pos * es.pdf_dir));
+                let mut ray = crate::accel::spawn_ray(es.ray.o, es.n, es.ray.d);
+                let mut depth = 0;
+                while let Some(si) = scene.intersect(&ray) {
+                    depth += 1;
+                    let wo = -ray.d;
+                    let shape = si.shape as usize;
+                    if let (true, Some(t), Some(m)) =
+                        (wo.dot(si.ng) > 0.0, &targets[shape], maps[shape].as_mut())
+                    {
+                        let ta = t.texel_area[(si.prim - scene.shapes[shape].first_prim) as usize];
+                        let x = ((si.uv.x * t.width as f32) as i64).clamp(0, t.width as i64 - 1) as usize;
+                        let y = ((si.uv.y * t.height as f32) as i64).clamp(0, t.height as i64 - 1) as usize;
+                        let cell = if depth == 1 {
+                            &mut m.direct[y * t.width + x]
+                        } else {
+                            &mut m.indirect[y * t.width + x]
+                        };
+                        for (a, v) in cell.iter_mut().zip(beta.to_f64()) {
+                            *a += v * inv_n / ta as f64;
+                        }
+                    }
+                    let (frame, bsdf) = scene.bsdf(&si, wo);
+                    let uc = rng.next_f32();
+                    let u = rng.next_2d();
+                    let Some(bs) = bsdf.sample(frame.to_local(wo), uc, u, TransportMode::Importance) else {
+                        break;
+                    };
+                    let w = bs.weight();
+                    if w.is_black() {
+                        break;
+                    }
+                    beta *= w;
+                    ray = crate::accel::spawn_ray(si.p, si.ng, frame.to_world(bs.wi));
+                    if depth >= s.rr_depth {
+                        let q = beta_survival(beta, es.le, cos, pmf, es.pdf_pos, es.pdf_dir);
+                        if rng.next_f32() >= q {
+                            break;
+                        }
+                        beta *= 1.0 / q;
+                    }
+                }
+            }
+        }
+        maps
+    }
+
+    #[test]
+    fn fast_paths_and_fixed_point_match_the_generic_f64_pass_for_any_thread_count() {
+        use crate::image::Image;
+        use crate::scene::desc::{BitmapDesc, FilterType, WrapMode};
+        // floor with a bilinear bitmap albedo, a two-sided diffuse back wall, a small light
+        let img = Image {
+            width: 4,
+            height: 4,
+            data: (0..16).map(|i| Spectrum::rgb(0.2 + 0.04 * i as f32, 0.5, 0.9 - 0.05 * i as f32)).collect(),
+        };
+        let tex = TextureDesc::Bitmap(BitmapDesc {
+            image: std::sync::Arc::new(img),
+            filter: crate::scene::desc::FilterType::Bilinear,
+            wrap: WrapMode::Clamp,
+            path: "albedo.exr".into(),
+        });
+        let _ = FilterType::Nearest;
+        let quad = |p: [Vec3; 4]| TriangleMesh {
+            positions: p.to_vec(),
+            normals: vec![],
+            uvs: vec![Vec2::new(0.0, 0.0), Vec2::new(1.0, 0.0), Vec2::new(1.0, 1.0), Vec2::new(0.0, 1.0)],
+            indices: vec![[0, 1, 2], [0, 2, 3]],
+        };
+        let v = Vec3::new;
+        let shape =
+            |id: &str, mesh, bsdf, emitter| ShapeDesc { id: id.into(), mesh, bsdf, emitter, origin: None };
+        let desc = SceneDesc {
+            shapes: vec![
+                shape("floor", floor_quad(1.0), BsdfDesc::Diffuse { reflectance: tex }, None),
+                shape(
+                    "wall",
+                    quad([v(-1.0, 0.0, -1.0), v(1.0, 0.0, -1.0), v(1.0, 2.0, -1.0), v(-1.0, 2.0, -1.0)]),
+                    BsdfDesc::TwoSided(Box::new(diffuse(0.7))),
+                    None,
+                ),
+                shape(
+                    "light",
+                    quad([v(-0.3, 1.9, -0.3), v(0.3, 1.9, -0.3), v(0.3, 1.9, 0.3), v(-0.3, 1.9, 0.3)]),
+                    diffuse(0.0),
+                    Some(AreaEmitterDesc { radiance: Spectrum::rgb(5.0, 4.0, 3.0) }),
+                ),
+            ],
+            ..Default::default()
+        };
+        let scene = Scene::build(&desc).unwrap();
+        let targets = [
+            Some(target(8, 1.0)),
+            Some(IrradianceTarget { width: 4, height: 4, texel_area: vec![0.25; 2] }),
+            None,
+        ];
+        let s = LightTraceSettings {
+            paths: 200_000,
+            batch_size: 7_000,
+            rr_depth: 2,
+            seed: 21,
+            ..Default::default()
+        };
+        let want = reference(&scene, &targets, &s);
+        let runs: Vec<LightTraceOutput> = [1, 2, 3]
+            .iter()
+            .map(|&n| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(n)
+                    .build()
+                    .unwrap()
+                    .install(|| trace(&scene, &targets, &s, &|| {}))
+            })
+            .collect();
+        for (k, w) in want.iter().take(2).enumerate() {
+            let (w, got) = (w.as_ref().unwrap(), runs[0].maps[k].as_ref().unwrap());
+            for (a, b) in [(&w.direct, &got.direct), (&w.indirect, &got.indirect)] {
+                let max = a.iter().flatten().fold(0.0f64, |m, &x| m.max(x));
+                assert!(max > 0.0, "shape {k}: nothing deposited");
+                // Same random numbers and arithmetic: only the fixed-point rounding (≤ 2⁻²⁵ of
+                // the reference deposit per deposit) and the f64 summation order differ.
+                for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+                    assert!((x - y).abs() <= 1e-6 * max, "shape {k}: {x} vs {y}");
+                }
+            }
+            for r in &runs[1..] {
+                let o = r.maps[k].as_ref().unwrap();
+                assert_eq!(
+                    (&o.direct, &o.indirect),
+                    (&got.direct, &got.indirect),
+                    "thread count changed the result"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn fixed_point_overflow_is_detected_and_traced_again() {
+        // Every deposit of a closed emitting box into one texel; a unit 2⁴⁰ times too fine makes
+        // each deposit saturate: the pass must report it and succeed at a coarser unit, with the
+        // result of the normal scale.
+        let mut inner = crate::scene::load::cube_mesh();
+        for t in &mut inner.indices {
+            t.swap(1, 2);
+        }
+        inner.normals.clear();
+        let desc = SceneDesc {
+            shapes: vec![ShapeDesc {
+                id: "box".into(),
+                mesh: inner.clone(),
+                bsdf: diffuse(0.5),
+                emitter: Some(AreaEmitterDesc { radiance: Spectrum::splat(1.0) }),
+                origin: None,
+            }],
+            ..Default::default()
+        };
+        let scene = Scene::build(&desc).unwrap();
+        let texel_area: Vec<f32> = (0..inner.triangle_count()).map(|_| inner.area() as f32).collect();
+        let targets = [Some(IrradianceTarget { width: 1, height: 1, texel_area })];
+        let s = LightTraceSettings { paths: 20_000, seed: 2, ..Default::default() };
+        let sampler = scene.light_sampler().unwrap();
+        let mut shift = 40;
+        let mut tries = 0;
+        let out = loop {
+            tries += 1;
+            let fp = FixedPoint::new(&scene, &targets, s.paths, shift);
+            match trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}) {
+                Ok(out) => break out,
+                Err(bits) => {
+                    assert!(bits >= 1);
+                    shift -= bits;
+                }
+            }
+        };
+        assert!(tries >= 2 && shift < 40 - 16, "overflow not detected (tries {tries}, shift {shift})");
+        let want = trace(&scene, &targets, &s, &|| {});
+        let (a, b) =
+            (&out.maps[0].as_ref().unwrap().indirect[0][0], &want.maps[0].as_ref().unwrap().indirect[0][0]);
+        assert!(*b > 0.0 && (a / b - 1.0).abs() < 1e-6, "{a} vs {b}");
     }
 }

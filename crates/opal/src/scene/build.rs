@@ -3,7 +3,7 @@
 //! structure and the light sampler.
 
 use super::desc::{BsdfDesc, EmitterDesc, IntegratorDesc, SceneDesc, TextureDesc};
-use crate::accel::{Bvh, Hit};
+use crate::accel::{Bvh, Hit, TinyAccel};
 use crate::bsdf::{Bxdfs, Lambert};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -63,6 +63,8 @@ pub struct Scene {
     /// Warnings collected while building (dropped triangles...).
     pub warnings: Vec<String>,
     accel: Accel,
+    /// Flat SIMD structure used instead of `accel` for tiny scenes (identical hits).
+    tiny: Option<TinyAccel>,
     prim_shape: Vec<u32>,
     prim_light: Vec<u32>,
     light_sampler: Option<LightSampler>,
@@ -177,6 +179,7 @@ impl Scene {
             cameras.push(Camera::new(s));
         }
         let light_sampler = LightSampler::new(&lights);
+        let tiny = (tris.len() <= crate::accel::tiny::TINY_MAX).then(|| TinyAccel::new(tris.clone()));
         let accel = Accel::new(tris);
         Ok(Scene {
             shapes,
@@ -185,6 +188,7 @@ impl Scene {
             integrator: desc.integrator.clone().unwrap_or_default(),
             warnings: Vec::new(),
             accel,
+            tiny,
             prim_shape,
             prim_light,
             light_sampler,
@@ -200,13 +204,25 @@ impl Scene {
     /// Closest hit.
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<SurfaceInteraction> {
-        self.accel.intersect(ray).map(|h| self.interaction(ray, &h))
+        self.intersect_hit(ray).map(|h| self.interaction(ray, &h))
+    }
+
+    /// Closest hit, without the local geometry (see [`Scene::interaction`]).
+    #[inline]
+    pub fn intersect_hit(&self, ray: &Ray) -> Option<Hit> {
+        match &self.tiny {
+            Some(t) => t.intersect(ray),
+            None => self.accel.intersect(ray),
+        }
     }
 
     /// Whether anything blocks the ray before `ray.tmax`.
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
-        self.accel.occluded(ray)
+        match &self.tiny {
+            Some(t) => t.occluded(ray),
+            None => self.accel.occluded(ray),
+        }
     }
 
     /// Local geometry of a hit.

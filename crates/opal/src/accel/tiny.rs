@@ -1,0 +1,382 @@
+//! Flat structure for tiny scenes: every triangle is tested, eight at a time.
+//!
+//! For a few dozen triangles (the Cornell box has 32) a hierarchy costs more than it saves: a
+//! ray inside a closed room overlaps most boxes, so the BVH visits nearly every node and leaf
+//! anyway, with the branchy ordered traversal on top. [`TinyAccel`] stores the triangles in
+//! groups of [`LANES`] in structure-of-arrays form (`v[vertex][axis][lane]`) and runs the
+//! watertight test of [`super::triangle`] on a whole group at once (the lane loops compile to
+//! 8-wide AVX intrinsics when the CPU has AVX — detected at run time — and to portable lane
+//! loops otherwise).
+//!
+//! **Same results as [`super::TriRay`]**: the per-ray shear is applied in the paper's form
+//! `a_kx − S_x a_kz` (Woop et al. 2013), which rounds exactly like `TriRay`'s dot products with
+//! their exact-zero terms (IEEE addition is commutative and adding ±0 changes nothing but the sign
+//! of a zero, which no decision depends on); the edge functions, `det`, `t` and the
+//! barycentrics then use the same operations in the same order (Rust never contracts to FMA).
+//! A group in which some edge function is exactly zero goes through the scalar `TriRay` (its f64
+//! fallback), so t, barycentrics and the inclusive-edge rule — hence watertightness — are those
+//! of the BVH and brute force. Ties (two triangles at exactly the same `t`) keep the lowest
+//! index, like [`super::BruteForce`]. Padding lanes hold NaN vertices, which never hit.
+//!
+//! The scene uses it instead of the BVH up to [`TINY_MAX`] triangles ([`crate::scene::Scene`]).
+//!
+//! Tests: unit tests below; `crates/opal/tests/accel.rs` (identical hits to brute force on random
+//! soups and the Cornell box, watertightness on closed meshes).
+
+use super::Hit;
+use super::triangle::TriRay;
+use crate::geometry::Ray;
+use crate::math::Vec3;
+
+/// Triangles per group (SIMD lanes).
+pub const LANES: usize = 8;
+
+/// Largest triangle count for which the scene uses [`TinyAccel`] instead of the BVH.
+pub const TINY_MAX: usize = 64;
+
+/// Eight triangles, structure of arrays: `v[vertex][axis][lane]`.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+struct Group {
+    v: [[[f32; LANES]; 3]; 3],
+}
+
+/// Per-ray constants: origin, axis permutation and shear (as in [`TriRay`]).
+#[derive(Clone, Copy)]
+struct ShearRay {
+    o: [f32; 3],
+    k: [usize; 3],
+    sx: f32,
+    sy: f32,
+    sz: f32,
+}
+
+impl ShearRay {
+    #[inline(always)]
+    fn new(ray: &Ray) -> Self {
+        // Same axis choice and constants as `TriRay::new`.
+        let d = ray.d;
+        let a = d.abs();
+        let kz = if a.x > a.y {
+            if a.x > a.z { 0 } else { 2 }
+        } else if a.y > a.z {
+            1
+        } else {
+            2
+        };
+        let mut kx = if kz == 2 { 0 } else { kz + 1 };
+        let mut ky = if kx == 2 { 0 } else { kx + 1 };
+        if d[kz] < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        let sz = 1.0 / d[kz];
+        ShearRay { o: ray.o.to_array(), k: [kx, ky, kz], sx: d[kx] * sz, sy: d[ky] * sz, sz }
+    }
+}
+
+/// Hits of one group: `t`, barycentrics, hit mask, and mask of lanes with a zero edge function.
+struct GroupHits {
+    t: [f32; LANES],
+    b1: [f32; LANES],
+    b2: [f32; LANES],
+    hit: u32,
+    zero: u32,
+}
+
+/// The lane of `mask` (non-zero) with the smallest `t`, the lowest on ties.
+#[inline(always)]
+fn closest_lane(mask: u32, t: &[f32; LANES]) -> usize {
+    let mut m = mask;
+    let mut l = m.trailing_zeros() as usize;
+    m &= m - 1;
+    while m != 0 {
+        let j = m.trailing_zeros() as usize;
+        m &= m - 1;
+        if t[j] < t[l] {
+            l = j;
+        }
+    }
+    l
+}
+
+/// Flat all-triangles structure for tiny scenes (see the module docs).
+#[derive(Clone, Debug)]
+pub struct TinyAccel {
+    groups: Vec<Group>,
+    /// The triangles as given (scalar fallback).
+    tris: Vec<[Vec3; 3]>,
+}
+
+impl TinyAccel {
+    /// Wraps a triangle soup (any size works; it pays up to a few dozen triangles).
+    pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
+        let n_groups = tris.len().div_ceil(LANES);
+        let mut groups = vec![Group { v: [[[f32::NAN; LANES]; 3]; 3] }; n_groups];
+        for (i, t) in tris.iter().enumerate() {
+            let g = &mut groups[i / LANES];
+            for (v, p) in t.iter().enumerate() {
+                for a in 0..3 {
+                    g.v[v][a][i % LANES] = p[a];
+                }
+            }
+        }
+        TinyAccel { groups, tris }
+    }
+
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.tris.len()
+    }
+
+    /// Whether there are no triangles.
+    pub fn is_empty(&self) -> bool {
+        self.tris.is_empty()
+    }
+
+    /// The watertight test on the eight lanes of `g` (same arithmetic as `TriRay::intersect`).
+    #[inline(always)]
+    fn group(g: &Group, r: &ShearRay, tmax: f32) -> GroupHits {
+        let [kx, ky, kz] = r.k;
+        let mut px = [[0.0f32; LANES]; 3];
+        let mut py = [[0.0f32; LANES]; 3];
+        let mut pz = [[0.0f32; LANES]; 3];
+        for v in 0..3 {
+            for l in 0..LANES {
+                let ax = g.v[v][kx][l] - r.o[kx];
+                let ay = g.v[v][ky][l] - r.o[ky];
+                let az = g.v[v][kz][l] - r.o[kz];
+                px[v][l] = ax - r.sx * az;
+                py[v][l] = ay - r.sy * az;
+                pz[v][l] = r.sz * az;
+            }
+        }
+        let mut out = GroupHits { t: [0.0; LANES], b1: [0.0; LANES], b2: [0.0; LANES], hit: 0, zero: 0 };
+        let mut ok = [false; LANES];
+        let mut zero = [false; LANES];
+        // Non-short-circuit `|`/`&` so the lane loop has no branches (vectorises).
+        for l in 0..LANES {
+            let (ax, ay, bx, by, cx, cy) = (px[0][l], py[0][l], px[1][l], py[1][l], px[2][l], py[2][l]);
+            let u = cx * by - cy * bx;
+            let v = ax * cy - ay * cx;
+            let w = bx * ay - by * ax;
+            zero[l] = (u == 0.0) | (v == 0.0) | (w == 0.0);
+            let mixed = ((u < 0.0) | (v < 0.0) | (w < 0.0)) & ((u > 0.0) | (v > 0.0) | (w > 0.0));
+            let det = u + v + w;
+            let tt = u * pz[0][l] + v * pz[1][l] + w * pz[2][l];
+            let inv = 1.0 / det;
+            let t = tt * inv;
+            // `(tt > 0) == (det > 0)` and `det != 0` are implied by `t > 0` for finite values,
+            // but are kept to match `TriRay` exactly (e.g. tt = ±0, det = ±∞).
+            ok[l] = !mixed & (det != 0.0) & ((tt > 0.0) == (det > 0.0)) & (t > 0.0) & (t < tmax);
+            out.t[l] = t;
+            out.b1[l] = v * inv;
+            out.b2[l] = w * inv;
+        }
+        for l in 0..LANES {
+            out.hit |= (ok[l] as u32) << l;
+            out.zero |= (zero[l] as u32) << l;
+        }
+        out
+    }
+
+    #[inline(always)]
+    fn traverse<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
+        let r = ShearRay::new(ray);
+        let mut tmax = ray.tmax;
+        let mut best = None;
+        for (gi, g) in self.groups.iter().enumerate() {
+            let h = Self::group(g, &r, tmax);
+            let base = gi * LANES;
+            if h.zero != 0 {
+                // Rare: an edge function is exactly zero somewhere: the scalar test with its f64
+                // recomputation, lane by lane in index order.
+                let tr = TriRay::new(ray);
+                for (i, tri) in self.tris.iter().enumerate().skip(base).take(LANES) {
+                    if let Some((t, b1, b2)) = tr.intersect(tri, tmax) {
+                        tmax = t;
+                        best = Some(Hit { t, prim: i as u32, b1, b2 });
+                        if ANY {
+                            return best;
+                        }
+                    }
+                }
+                continue;
+            }
+            if h.hit == 0 {
+                continue;
+            }
+            let l = closest_lane(h.hit, &h.t);
+            tmax = h.t[l];
+            best = Some(Hit { t: h.t[l], prim: (base + l) as u32, b1: h.b1[l], b2: h.b2[l] });
+            if ANY {
+                return best;
+            }
+        }
+        best
+    }
+
+    /// [`Self::traverse`] with AVX intrinsics (8 lanes per instruction; same operations).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx")]
+    fn traverse_avx<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
+        use std::arch::x86_64::*;
+        let r = ShearRay::new(ray);
+        let [kx, ky, kz] = r.k;
+        let (ox, oy, oz) = (_mm256_set1_ps(r.o[kx]), _mm256_set1_ps(r.o[ky]), _mm256_set1_ps(r.o[kz]));
+        let (sx, sy, sz) = (_mm256_set1_ps(r.sx), _mm256_set1_ps(r.sy), _mm256_set1_ps(r.sz));
+        let zero = _mm256_setzero_ps();
+        let one = _mm256_set1_ps(1.0);
+        let mut tmax = ray.tmax;
+        let mut best = None;
+        for (gi, g) in self.groups.iter().enumerate() {
+            // SAFETY: `Group` is 32-byte aligned and each `[f32; 8]` row is 32 bytes, so every
+            // row pointer is aligned and valid for 8 reads.
+            let ld = |v: usize, a: usize| unsafe { _mm256_load_ps(g.v[v][a].as_ptr()) };
+            let mut px = [zero; 3];
+            let mut py = [zero; 3];
+            let mut pz = [zero; 3];
+            for v in 0..3 {
+                let az = _mm256_sub_ps(ld(v, kz), oz);
+                px[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, kx), ox), _mm256_mul_ps(sx, az));
+                py[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, ky), oy), _mm256_mul_ps(sy, az));
+                pz[v] = _mm256_mul_ps(sz, az);
+            }
+            let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
+            let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
+            let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
+            let eq0 = |x| _mm256_cmp_ps::<_CMP_EQ_OQ>(x, zero);
+            let lt0 = |x| _mm256_cmp_ps::<_CMP_LT_OQ>(x, zero);
+            let gt0 = |x| _mm256_cmp_ps::<_CMP_GT_OQ>(x, zero);
+            let zmask = _mm256_movemask_ps(_mm256_or_ps(_mm256_or_ps(eq0(u), eq0(v)), eq0(w)));
+            let neg = _mm256_or_ps(_mm256_or_ps(lt0(u), lt0(v)), lt0(w));
+            let pos = _mm256_or_ps(_mm256_or_ps(gt0(u), gt0(v)), gt0(w));
+            let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
+            let tt = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
+                _mm256_mul_ps(w, pz[2]),
+            );
+            let inv = _mm256_div_ps(one, det);
+            let t = _mm256_mul_ps(tt, inv);
+            let bad = _mm256_or_ps(_mm256_and_ps(neg, pos), _mm256_xor_ps(gt0(tt), gt0(det)));
+            let good = _mm256_and_ps(
+                _mm256_and_ps(_mm256_cmp_ps::<_CMP_NEQ_UQ>(det, zero), gt0(t)),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_set1_ps(tmax)),
+            );
+            let hit = _mm256_movemask_ps(_mm256_andnot_ps(bad, good)) as u32;
+            let base = gi * LANES;
+            if zmask != 0 {
+                // Rare: an edge function is exactly zero: the scalar test (f64 recomputation).
+                let tr = TriRay::new(ray);
+                for (i, tri) in self.tris.iter().enumerate().skip(base).take(LANES) {
+                    if let Some((t, b1, b2)) = tr.intersect(tri, tmax) {
+                        tmax = t;
+                        best = Some(Hit { t, prim: i as u32, b1, b2 });
+                        if ANY {
+                            return best;
+                        }
+                    }
+                }
+                continue;
+            }
+            if hit == 0 {
+                continue;
+            }
+            let mut ts = [0.0f32; LANES];
+            // SAFETY: `ts` holds 8 floats (unaligned store).
+            unsafe { _mm256_storeu_ps(ts.as_mut_ptr(), t) };
+            let l = closest_lane(hit, &ts);
+            let mut b1 = [0.0f32; LANES];
+            let mut b2 = [0.0f32; LANES];
+            // SAFETY: as above.
+            unsafe {
+                _mm256_storeu_ps(b1.as_mut_ptr(), _mm256_mul_ps(v, inv));
+                _mm256_storeu_ps(b2.as_mut_ptr(), _mm256_mul_ps(w, inv));
+            }
+            tmax = ts[l];
+            best = Some(Hit { t: ts[l], prim: (base + l) as u32, b1: b1[l], b2: b2[l] });
+            if ANY {
+                return best;
+            }
+        }
+        best
+    }
+
+    #[inline(always)]
+    fn dispatch<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx") {
+            // SAFETY: the CPU supports AVX (checked just above).
+            return unsafe { self.traverse_avx::<ANY>(ray) };
+        }
+        self.traverse::<ANY>(ray)
+    }
+
+    /// Closest hit with `0 < t < ray.tmax`.
+    pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.dispatch::<false>(ray)
+    }
+
+    /// Whether any triangle is hit with `0 < t < ray.tmax`.
+    pub fn occluded(&self, ray: &Ray) -> bool {
+        self.dispatch::<true>(ray).is_some()
+    }
+
+    /// Closest hit computed without AVX (the portable lane loops), for tests.
+    pub fn intersect_portable(&self, ray: &Ray) -> Option<Hit> {
+        self.traverse::<false>(ray)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::BruteForce;
+    use crate::sampling::Rng;
+
+    #[test]
+    fn empty_single_and_padding() {
+        let a = TinyAccel::new(vec![]);
+        assert!(a.is_empty() && a.intersect(&Ray::new(Vec3::ZERO, Vec3::X)).is_none());
+        let tri = [Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.0, 1.0, 1.0)];
+        let a = TinyAccel::new(vec![tri]);
+        let h = a.intersect(&Ray::new(Vec3::new(0.1, 0.1, 0.0), Vec3::Z)).unwrap();
+        assert_eq!(h.prim, 0);
+        assert!((h.t - 1.0).abs() < 1e-6 && (h.b1 - 0.1).abs() < 1e-6 && (h.b2 - 0.1).abs() < 1e-6);
+        assert!(a.occluded(&Ray::new(Vec3::new(0.1, 0.1, 0.0), Vec3::Z)));
+        // the 7 NaN padding lanes never hit, whatever the ray
+        assert!(a.intersect(&Ray::new(Vec3::new(5.0, 5.0, 0.0), Vec3::Z)).is_none());
+    }
+
+    #[test]
+    fn ties_keep_the_lowest_index_and_zero_edges_take_the_scalar_path() {
+        let tri = [Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.0, 1.0, 1.0)];
+        let far = [Vec3::new(0.0, 0.0, 2.0), Vec3::new(1.0, 0.0, 2.0), Vec3::new(0.0, 1.0, 2.0)];
+        let a = TinyAccel::new(vec![far, tri, tri, far, tri]);
+        let h = a.intersect(&Ray::new(Vec3::new(0.2, 0.2, 0.0), Vec3::Z)).unwrap();
+        assert_eq!(h.prim, 1);
+        // through the shared corner (0, 0): exact-zero edge functions
+        let h = a.intersect(&Ray::new(Vec3::new(0.0, 0.0, 0.0), Vec3::Z)).unwrap();
+        assert_eq!((h.prim, h.t), (1, 1.0));
+    }
+
+    #[test]
+    fn portable_and_dispatched_agree_with_brute_force() {
+        for seed in 0..4u64 {
+            let n = [3usize, 8, 31, 64][seed as usize];
+            let tris = crate::accel::scenes::random_soup(n, 0.5, seed);
+            let a = TinyAccel::new(tris.clone());
+            let bf = BruteForce::new(tris);
+            for i in 0..2000u64 {
+                let mut rng = Rng::new(seed, 9, i);
+                let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 3.0 - 1.5;
+                let d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+                let tmax = if i % 3 == 0 { rng.next_f32() * 2.0 } else { f32::INFINITY };
+                let ray = Ray { o, d, tmax };
+                let want = bf.intersect(&ray);
+                assert_eq!(a.intersect(&ray), want, "{ray:?}");
+                assert_eq!(a.intersect_portable(&ray), want, "{ray:?}");
+                assert_eq!(a.occluded(&ray), bf.occluded(&ray));
+            }
+        }
+    }
+}
