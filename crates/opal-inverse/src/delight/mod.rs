@@ -920,9 +920,28 @@ pub fn delight(
             break;
         }
     }
+    debug_dump(&objects, "final");
     timings.push(("iterations".into(), iterations.iter().map(|i| i.seconds).sum()));
     timings.push(("total".into(), t_all.elapsed().as_secs_f64()));
     Ok(DelightResult { objects, skipped, iterations, converged, warnings, timings, light_paths })
+}
+
+/// Debug dump (`OPAL_DELIGHT_DUMP=DIR`): per object the luminance map, observed mask, direct and
+/// indirect irradiance and albedo as EXR files (`<id>_<what>.exr`), for error analysis.
+fn debug_dump(objects: &[ObjectResult], tag: &str) {
+    let Ok(dir) = std::env::var("OPAL_DELIGHT_DUMP") else { return };
+    let dir = std::path::PathBuf::from(dir);
+    let _ = std::fs::create_dir_all(&dir);
+    for o in objects {
+        let (w, h) = (o.atlas.width, o.atlas.height);
+        let obs: Vec<[f32; 3]> = o.observed.iter().map(|&b| [b as u8 as f32; 3]).collect();
+        for (what, v) in [("l", &o.l), ("obs", &obs), ("ed", &o.ed), ("ei", &o.ei), ("kd", &o.kd)] {
+            let path = dir.join(format!("{}_{tag}_{what}.exr", o.id));
+            if let Ok(f) = std::fs::File::create(&path) {
+                let _ = opal::image::write::write_exr(&to_image(v, w, h), std::io::BufWriter::new(f));
+            }
+        }
+    }
 }
 
 fn fill_unseen(objects: &mut [ObjectResult]) {
