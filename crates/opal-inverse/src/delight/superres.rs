@@ -223,7 +223,7 @@ fn view_rows(scene: &Scene, shape: u32, a: &Atlas, view: &View, pure: &PureBuffe
 /// Diagnostic (`OPAL_SR_TRUTH=B.exr`, `OPAL_SR_DIAG=DIR`): residual of the observation operator
 /// applied to a given radiance map against the photo, per view, normalised by the photo's
 /// standard error (`<view>_stderr.exr` next to the image, when present).
-fn diag_residual(v: &View, rows: &mut [Row], a: &Atlas) {
+fn diag_residual(v: &View, rows: &mut [Row], a: &Atlas, fine: &std::collections::HashMap<u32, &Row>) {
     let (Ok(tp), Ok(dir)) = (std::env::var("OPAL_SR_TRUTH"), std::env::var("OPAL_SR_DIAG")) else { return };
     let Ok(b) = opal::image::read::read_image(std::path::Path::new(&tp)) else { return };
     if b.width != a.width || b.height != a.height {
@@ -246,6 +246,15 @@ fn diag_residual(v: &View, rows: &mut [Row], a: &Atlas) {
             }
         }
         if let Some(sy) = &synth {
+            if let Some(g) = fine.get(&r.pix) {
+                pred = [0f32; 3];
+                for &(c, wt) in &g.entries {
+                    let t = b.data[c as usize];
+                    for ch in 0..3 {
+                        pred[ch] += wt * t[ch];
+                    }
+                }
+            }
             // synthetic photo: the truth through the operator, plus Gaussian noise of the photo's
             // standard error ("stderr") or of a relative level
             let sd: [f32; 3] = match (sy.as_str(), &se) {
@@ -312,7 +321,10 @@ pub fn superres_luminance(
     let mut rows: Vec<Row> = Vec::new();
     for (v, pb) in views.iter().zip(pure) {
         let mut vr = view_rows(scene, shape, a, v, pb, s.subsamples.max(1));
-        diag_residual(v, &mut vr, a);
+        let gen_ss: u32 = std::env::var("OPAL_SR_SYNTH_SS").ok().and_then(|x| x.parse().ok()).unwrap_or(0);
+        let fine = if gen_ss > 0 { view_rows(scene, shape, a, v, pb, gen_ss) } else { Vec::new() };
+        let fine: std::collections::HashMap<u32, &Row> = fine.iter().map(|r| (r.pix, r)).collect();
+        diag_residual(v, &mut vr, a, &fine);
         rows.extend(vr);
     }
     if rows.is_empty() {
