@@ -59,10 +59,15 @@ pub struct DelightArgs {
     /// sharper than the pixels) or `backproject` (each texel samples each view).
     #[arg(long, default_value = "superres")]
     pub luminance: String,
-    /// Total-variation weight of `--luminance superres` (units of the mean radiance; default
-    /// 0.0067, chosen by simulating the reference views' noise: bench/scripts/psnr_bound.py).
+    /// Edge-prior weight λ of `--luminance superres` (units of the mean radiance; default 0.004
+    /// with the default exponent 0.5, chosen on simulated views with the reference photos' noise:
+    /// docs/delight.md step 3).
     #[arg(long)]
     pub tv_lambda: Option<f32>,
+    /// Exponent p of the edge prior `(|∇B|² + ε²)^{p/2}` of `--luminance superres`: 1 = total
+    /// variation (the earlier default, then use `--tv-lambda 0.0067`), default 0.5.
+    #[arg(long)]
+    pub tv_exponent: Option<f32>,
     /// Seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -200,6 +205,12 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
                     bail!("--tv-lambda must be a finite number ≥ 0, got {l}");
                 }
                 sr.lambda = l;
+            }
+            if let Some(p) = a.tv_exponent {
+                if !(p.is_finite() && p > 0.0 && p <= 2.0) {
+                    bail!("--tv-exponent must be in (0, 2], got {p}");
+                }
+                sr.exponent = p;
             }
             Some(sr)
         }
@@ -541,6 +552,7 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         rerender_spp: 64,
         luminance: "superres".into(),
         tv_lambda: None,
+        tv_exponent: None,
         seed: 0,
         threads: None,
         json: false,

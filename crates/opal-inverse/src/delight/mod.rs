@@ -8,7 +8,10 @@
 //! 2. luminance map `L`: every covered texel is projected into every view; a view counts when
 //!    the texel faces it, lies in its frustum, the segment to the camera is unoccluded and the
 //!    bilinear taps are "pure" pixels of the same shape and plane ([`views::pure_buffer`]);
-//!    views are averaged with cos θ (surface normal · direction to the camera) weights;
+//!    views are averaged with cos θ (surface normal · direction to the camera) weights; after
+//!    the first light-tracing pass (step 6) it is replaced by the multi-view super-resolved map
+//!    ([`superres`], unless `superres` is `None`) whose prior acts on `L / (Ed + Ei)`, the
+//!    albedo up to a constant (the indirect part smoothed over resolution/16 texels);
 //! 3. objects close to an emitter get a 3×3 median filter on `L` first; holes of `L` are
 //!    inpainted ([`inpaint`]) for previews;
 //! 4. direct irradiance `Ed` per texel by light sampling (power-proportional light choice,
@@ -666,62 +669,7 @@ pub fn delight(
         return Err(Error::invalid("objects", "no object could be unwrapped"));
     }
     timings.push(("unwrap".into(), t0.elapsed().as_secs_f64()));
-    // 2–3. luminance maps
-    let t0 = std::time::Instant::now();
-    let pure: Vec<PureBuffer> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
-    let (slo, shi) = scene.bounds();
-    let diag = (shi - slo).length();
-    let emit_boxes: Vec<(Vec3, Vec3)> = scene
-        .shapes
-        .iter()
-        .filter(|s| s.emission.is_some())
-        .map(|s| bbox(s.mesh.positions.iter().copied()))
-        .collect();
-    for o in &mut objects {
-        let (mut l, mut obs) = luminance_map(&scene, o.shape as u32, &o.atlas, views, &pure);
-        if let Some(sr) = &s.superres
-            && let Some((ls, os)) =
-                superres::superres_luminance(&scene, o.shape as u32, &o.atlas, views, &pure, (&l, &obs), sr)
-        {
-            l = ls;
-            obs = os;
-        }
-        o.l = l;
-        o.observed = obs;
-        let covered = o.atlas.covered().max(1);
-        o.seen_fraction = o.observed.iter().filter(|&&b| b).count() as f64 / covered as f64;
-        let (lo, hi) = bbox(o.atlas.mesh.positions.iter().copied());
-        o.near_emitter = emit_boxes.iter().any(|(elo, ehi)| {
-            let gap = (*elo - hi).max(lo - *ehi).max(Vec3::ZERO);
-            gap.length() < 0.05 * diag
-        });
-        let chart: Vec<u32> = (0..o.l.len()).map(|i| o.atlas.texel_chart(i)).collect();
-        let (w, h) = (o.atlas.width, o.atlas.height);
-        if o.near_emitter {
-            inpaint::median3(&mut o.l, &o.observed, &chart, w, h);
-        }
-        let covered_mask: Vec<bool> = (0..o.l.len()).map(|i| o.atlas.texel_tri[i] != NO_TRI).collect();
-        let left = inpaint::inpaint(&mut o.l, &o.observed, &covered_mask, &chart, w, h, (w / 16).max(4));
-        if o.seen_fraction == 0.0 {
-            warnings.push(format!(
-                "object '{}' is seen by no view: its albedo is the scene average (flagged)",
-                o.id
-            ));
-        } else if left > 0 {
-            warnings.push(format!(
-                "object '{}': {left} texels in charts seen by no view were filled with the object's mean",
-                o.id
-            ));
-        }
-        log(&format!(
-            "luminance {}: {:.1} % of texels seen{}",
-            o.id,
-            100.0 * o.seen_fraction,
-            if o.near_emitter { ", near an emitter (median)" } else { "" }
-        ));
-    }
-    timings.push(("luminance".into(), t0.elapsed().as_secs_f64()));
-    // 4. direct irradiance
+    // 4. direct irradiance (first: it shapes the prior of the super-resolved luminance maps)
     let t0 = std::time::Instant::now();
     for (j, o) in objects.iter_mut().enumerate() {
         o.ed = direct_irradiance(&scene, &o.atlas, s.direct_samples, s.seed, 0xED00 + j as u64);
@@ -743,6 +691,64 @@ pub fn delight(
         }
     }
     let avg = avg.map(|v| (v / aw.max(1e-30)) as f32);
+    // 2–3. luminance maps
+    let t0 = std::time::Instant::now();
+    let pure: Vec<PureBuffer> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
+    let (slo, shi) = scene.bounds();
+    let diag = (shi - slo).length();
+    let emit_boxes: Vec<(Vec3, Vec3)> = scene
+        .shapes
+        .iter()
+        .filter(|s| s.emission.is_some())
+        .map(|s| bbox(s.mesh.positions.iter().copied()))
+        .collect();
+    for o in &mut objects {
+        let (mut l, mut obs) = luminance_map(&scene, o.shape as u32, &o.atlas, views, &pure);
+        // super-resolution here only when no light-tracing pass gives the shading (see below)
+        if s.iterations == 0
+            && let Some(sr) = &s.superres
+            && let Some((ls, os)) = superres::superres_luminance(
+                &scene,
+                o.shape as u32,
+                &o.atlas,
+                views,
+                &pure,
+                (&l, &obs),
+                None,
+                sr,
+            )
+        {
+            l = ls;
+            obs = os;
+        }
+        o.l = l;
+        o.observed = obs;
+        let (lo, hi) = bbox(o.atlas.mesh.positions.iter().copied());
+        o.near_emitter = emit_boxes.iter().any(|(elo, ehi)| {
+            let gap = (*elo - hi).max(lo - *ehi).max(Vec3::ZERO);
+            gap.length() < 0.05 * diag
+        });
+        let left = finish_luminance(o);
+        if o.seen_fraction == 0.0 {
+            warnings.push(format!(
+                "object '{}' is seen by no view: its albedo is the scene average (flagged)",
+                o.id
+            ));
+        } else if left > 0 {
+            warnings.push(format!(
+                "object '{}': {left} texels in charts seen by no view were filled with the object's mean",
+                o.id
+            ));
+        }
+        log(&format!(
+            "luminance {}: {:.1} % of texels seen{}",
+            o.id,
+            100.0 * o.seen_fraction,
+            if o.near_emitter { ", near an emitter (median)" } else { "" }
+        ));
+    }
+    timings.push(("luminance".into(), t0.elapsed().as_secs_f64()));
+    // 5. initial Kd
     for o in &mut objects {
         for i in 0..o.ed.len() {
             for c in 0..3 {
@@ -896,6 +902,52 @@ pub fn delight(
                 ));
             }
         }
+        // multi-view super-resolution once the first pass gives the indirect irradiance: its
+        // prior acts on B / (Ed + Ei), i.e. on the albedo rather than on the lighting
+        if k == 1
+            && let Some(sr) = &s.superres
+        {
+            let t1 = std::time::Instant::now();
+            for o in &mut objects {
+                // the indirect part smoothed further (low-frequency; its Monte-Carlo noise would
+                // otherwise enter the prior's albedo estimate)
+                let ei = smooth_in_charts(&o.ei, &o.atlas, (o.atlas.width / 16).max(1));
+                let mut shading: Vec<f32> =
+                    o.ed.iter()
+                        .zip(&ei)
+                        .map(|(d, i)| luminance(std::array::from_fn(|c| d[c] + i[c])))
+                        .collect();
+                if let Ok(p) = std::env::var("OPAL_SR_SHADING") {
+                    // error analysis: a given irradiance map (e.g. the true one) instead
+                    if let Ok(img) = opal::image::read::read_image(std::path::Path::new(&p))
+                        && img.data.len() == shading.len()
+                    {
+                        shading = img.data.iter().map(|v| luminance(v.0)).collect();
+                    }
+                }
+                if let Some((ls, os)) = superres::superres_luminance(
+                    &scene,
+                    o.shape as u32,
+                    &o.atlas,
+                    views,
+                    &pure,
+                    (&o.l, &o.observed),
+                    Some(&shading),
+                    sr,
+                ) {
+                    o.l = ls;
+                    o.observed = os;
+                    finish_luminance(o);
+                    o.clamped = update_kd(o);
+                    log(&format!(
+                        "super-resolved luminance {}: {:.1} % of texels seen",
+                        o.id,
+                        100.0 * o.seen_fraction
+                    ));
+                }
+            }
+            timings.push(("superres".into(), t1.elapsed().as_secs_f64()));
+        }
         fill_unseen(&mut objects);
         let st = IterationStats {
             iteration: k,
@@ -920,9 +972,42 @@ pub fn delight(
             break;
         }
     }
+    debug_dump(&objects, "final");
     timings.push(("iterations".into(), iterations.iter().map(|i| i.seconds).sum()));
     timings.push(("total".into(), t_all.elapsed().as_secs_f64()));
     Ok(DelightResult { objects, skipped, iterations, converged, warnings, timings, light_paths })
+}
+
+/// Seen fraction, median filter next to emitters and inpainting of the holes of a new luminance
+/// map; returns the number of texels left unfilled (charts seen by no view).
+fn finish_luminance(o: &mut ObjectResult) -> usize {
+    let covered = o.atlas.covered().max(1);
+    o.seen_fraction = o.observed.iter().filter(|&&b| b).count() as f64 / covered as f64;
+    let chart: Vec<u32> = (0..o.l.len()).map(|i| o.atlas.texel_chart(i)).collect();
+    let (w, h) = (o.atlas.width, o.atlas.height);
+    if o.near_emitter {
+        inpaint::median3(&mut o.l, &o.observed, &chart, w, h);
+    }
+    let covered_mask: Vec<bool> = (0..o.l.len()).map(|i| o.atlas.texel_tri[i] != NO_TRI).collect();
+    inpaint::inpaint(&mut o.l, &o.observed, &covered_mask, &chart, w, h, (w / 16).max(4))
+}
+
+/// Debug dump (`OPAL_DELIGHT_DUMP=DIR`): per object the luminance map, observed mask, direct and
+/// indirect irradiance and albedo as EXR files (`<id>_<what>.exr`), for error analysis.
+fn debug_dump(objects: &[ObjectResult], tag: &str) {
+    let Ok(dir) = std::env::var("OPAL_DELIGHT_DUMP") else { return };
+    let dir = std::path::PathBuf::from(dir);
+    let _ = std::fs::create_dir_all(&dir);
+    for o in objects {
+        let (w, h) = (o.atlas.width, o.atlas.height);
+        let obs: Vec<[f32; 3]> = o.observed.iter().map(|&b| [b as u8 as f32; 3]).collect();
+        for (what, v) in [("l", &o.l), ("obs", &obs), ("ed", &o.ed), ("ei", &o.ei), ("kd", &o.kd)] {
+            let path = dir.join(format!("{}_{tag}_{what}.exr", o.id));
+            if let Ok(f) = std::fs::File::create(&path) {
+                let _ = opal::image::write::write_exr(&to_image(v, w, h), std::io::BufWriter::new(f));
+            }
+        }
+    }
 }
 
 fn fill_unseen(objects: &mut [ObjectResult]) {

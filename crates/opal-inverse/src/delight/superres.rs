@@ -14,23 +14,40 @@
 //! reach 38 dB PSNR on a texture with 1–3-texel lines (27.5 dB even with noise-free photos,
 //! `bench/scripts/psnr_bound.py`). Here all views are inverted jointly:
 //!
-//! `min_B  Σ_p (A B − y)_p² + λ Σ_edges |∇B|`   (vectorial total variation over RGB),
+//! `min_K  Σ_p w_p (A (s ⊙ K) − y)_p² + λ Σ_edges φ(|∇K|)`,  `B = s ⊙ K`,
 //!
-//! solved by iteratively reweighted least squares (IRLS: the TV term becomes
-//! `λ Σ w_e |∇_e B|²` with `w_e = 1/max(|∇_e B|, ε)`), each reweighting by Jacobi-preconditioned
-//! conjugate gradients on the normal equations, warm-started from the back-projected map.
-//! Values are solved in units of the mean observed radiance, so λ and ε are scale-free;
-//! λ is scaled by the observation density (rows per unknown / 2.5, the density of the reference
-//! data the defaults were chosen on).
+//! with a smooth *shading* s (the irradiance estimate `Ed + Ei` of the pipeline after its first
+//! light-tracing pass, so K is the albedo up to a constant: the prior sees the texture, not the
+//! lighting's 23:1 gradients and shadows), pixel weights `w_p = 1/y_p²` (the photos' noise is
+//! relative: Monte-Carlo or shot noise, σ ∝ y) normalised to mean 1, and the sparse-gradient
+//! edge penalty `φ(g) = (g² + ε²)^{p/2}` on the RGB gradient norm (p = 1: total variation;
+//! default p = ½, non-convex: it smooths flat areas like TV but shrinks the texture's thin lines
+//! much less). Without a shading, s = 1 and w = 1 (the map B itself, as in the first version).
+//! Solved by iteratively reweighted least squares (IRLS: the prior becomes `λ Σ w_e |∇_e K|²`,
+//! `w_e = (|∇_e K|² + ε²)^{(p−2)/2}`, for p = 1 `1/max(|∇_e K|, ε)`), each reweighting by
+//! Jacobi-preconditioned conjugate gradients on the normal equations, warm-started from the
+//! previous map. Values are solved in units of the mean observed radiance (and s in units of
+//! its mean), so λ and ε are scale-free; λ is scaled by the observation density (rows per
+//! unknown / 2.5, the density of the reference data the defaults were chosen on).
 //!
 //! Parameters: [`SrSettings`]. Conventions: texel (x, y) has its centre at
 //! uv = ((x+½)/W, (y+½)/H) (Mitsuba's bitmap lookup, clamp wrap); only pixels whose S² sub-pixel
 //! rays all hit the object (and are *pure* in [`super::views::PureBuffer`]) are used, so
-//! occlusion and anti-aliased edges next to bright emitters never enter; TV edges never cross a
-//! chart seam. A texel counts as observed when the pixels covering it give it a total weight ≥
+//! occlusion and anti-aliased edges next to bright emitters never enter; prior edges never cross
+//! a chart seam. A texel counts as observed when the pixels covering it give it a total weight ≥
 //! [`SrSettings::min_weight`].
 //!
-//! References: Rudin, Osher, Fatemi 1992 (TV); the multi-view super-resolution formulation of
+//! Error analysis hooks (environment, for `bench/scripts/delight_psnr_budget.py`):
+//! `OPAL_SR_TRUTH=B.exr` (a radiance map on the atlas grid) with `OPAL_SR_DIAG=DIR` prints per
+//! view the residual of the operator applied to it against the photo (χ² against
+//! `<view>_stderr.exr` when present) and writes residual images; `OPAL_SR_SYNTH` replaces the
+//! photos by that map through the operator plus noise: `stderr` (Gaussian, the photo's standard
+//! error), `stderrcorr` (channels correlated ρ = 0.7), a relative level (`0.02`), `shuffle` /
+//! `relshuffle` (the real residuals permuted), `clipK` (the real photo with its residuals
+//! clipped at K standard errors); `OPAL_SR_SYNTH_SS=N` generates with N×N sub-pixel rays.
+//!
+//! References: Rudin, Osher, Fatemi 1992 (TV); Geman & Reynolds 1992 / Nikolova 2005
+//! (non-convex edge-preserving priors, IRLS); the multi-view super-resolution formulation of
 //! texture maps follows Goldlücke & Cremers 2009 ("Superresolution texture maps for multiview
 //! reconstruction"), here with known geometry and a box-filtered pixel model.
 //!
@@ -53,6 +70,10 @@ pub struct SrSettings {
     pub lambda: f32,
     /// IRLS floor ε of |∇B| (units of the mean radiance).
     pub eps: f32,
+    /// Exponent p of the edge penalty `(|∇B|² + ε²)^{p/2}`: 1 = total variation (with the
+    /// IRLS weight `λ/max(|∇B|, ε)`), < 1 = a non-convex sparse-gradient prior that shrinks strong
+    /// edges (the texture's thin lines) less than TV at the same smoothing of flat areas.
+    pub exponent: f32,
     /// IRLS reweightings.
     pub irls: usize,
     /// Conjugate-gradient iterations per reweighting.
@@ -63,7 +84,15 @@ pub struct SrSettings {
 
 impl Default for SrSettings {
     fn default() -> Self {
-        SrSettings { subsamples: 4, lambda: 0.0067, eps: 0.022, irls: 6, cg_iters: 60, min_weight: 0.25 }
+        SrSettings {
+            subsamples: 4,
+            lambda: 0.004,
+            eps: 0.022,
+            exponent: 0.5,
+            irls: 6,
+            cg_iters: 60,
+            min_weight: 0.25,
+        }
     }
 }
 
@@ -121,6 +150,7 @@ impl Csr {
 struct Row {
     entries: Vec<(u32, f32)>,
     y: [f32; 3],
+    pix: u32,
 }
 
 fn bary(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> (f32, f32, f32) {
@@ -200,17 +230,147 @@ fn view_rows(scene: &Scene, shape: u32, a: &Atlas, view: &View, pure: &PureBuffe
                         _ => merged.push((c, v)),
                     }
                 }
-                rows.push(Row { entries: merged, y: yv.0 });
+                rows.push(Row { entries: merged, y: yv.0, pix: k as u32 });
             }
             rows
         })
         .collect()
 }
 
+/// Diagnostic (`OPAL_SR_TRUTH=B.exr`, `OPAL_SR_DIAG=DIR`): residual of the observation operator
+/// applied to a given radiance map against the photo, per view, normalised by the photo's
+/// standard error (`<view>_stderr.exr` next to the image, when present).
+fn diag_residual(v: &View, rows: &mut [Row], a: &Atlas, fine: &std::collections::HashMap<u32, &Row>) {
+    let (Ok(tp), Ok(dir)) = (std::env::var("OPAL_SR_TRUTH"), std::env::var("OPAL_SR_DIAG")) else { return };
+    let Ok(b) = opal::image::read::read_image(std::path::Path::new(&tp)) else { return };
+    if b.width != a.width || b.height != a.height {
+        return;
+    }
+    let se_path = v.path.with_file_name(format!("{}_stderr.exr", v.name));
+    let se = opal::image::read::read_image(&se_path).ok();
+    let (w, h) = (v.camera.width, v.camera.height);
+    let mut res = opal::image::Image::new(w, h);
+    let mut nrm = opal::image::Image::new(w, h);
+    let (mut chi, mut rel, mut n) = (0f64, 0f64, 0usize);
+    let synth = std::env::var("OPAL_SR_SYNTH").ok();
+    let mut rng = opal::sampling::Rng::new(77, v.name.len() as u64, rows.len() as u64);
+    // "shuffle": the real residuals normalised by the standard error, permuted over the pixels
+    // (keeps their distribution, drops any spatial structure); "relshuffle": the same with the
+    // residuals relative to the prediction
+    let mut perm: Vec<[f32; 3]> = Vec::new();
+    if matches!(synth.as_deref(), Some("shuffle") | Some("relshuffle")) {
+        for r in rows.iter() {
+            let mut pred = [0f32; 3];
+            for &(c, wt) in &r.entries {
+                for ch in 0..3 {
+                    pred[ch] += wt * b.data[c as usize][ch];
+                }
+            }
+            let den: [f32; 3] = match (synth.as_deref(), &se) {
+                (Some("shuffle"), Some(se)) => se.data[r.pix as usize].0,
+                _ => pred,
+            };
+            perm.push(std::array::from_fn(|ch| (r.y[ch] - pred[ch]) / den[ch].max(1e-9)));
+        }
+        for i in (1..perm.len()).rev() {
+            let j = ((rng.next_f32() * (i + 1) as f32) as usize).min(i);
+            perm.swap(i, j);
+        }
+    }
+    for (ri, r) in rows.iter_mut().enumerate() {
+        let mut pred = [0f32; 3];
+        for &(c, wt) in &r.entries {
+            let t = b.data[c as usize];
+            for ch in 0..3 {
+                pred[ch] += wt * t[ch];
+            }
+        }
+        if let Some(sy) = &synth {
+            if let Some(g) = fine.get(&r.pix) {
+                pred = [0f32; 3];
+                for &(c, wt) in &g.entries {
+                    let t = b.data[c as usize];
+                    for ch in 0..3 {
+                        pred[ch] += wt * t[ch];
+                    }
+                }
+            }
+            // synthetic photo: the truth through the operator, plus Gaussian noise of the photo's
+            // standard error ("stderr") or of a relative level
+            let sd: [f32; 3] = match (sy.as_str(), &se) {
+                ("stderr" | "stderrcorr", Some(se)) => se.data[r.pix as usize].0,
+                (x, _) => {
+                    let k: f32 = x.parse().unwrap_or(0.0);
+                    pred.map(|p| k * p)
+                }
+            };
+            if let (Some(k), Some(se)) = (sy.strip_prefix("clip").and_then(|k| k.parse::<f32>().ok()), &se) {
+                // oracle: the real photo with its residual clipped at k standard errors
+                let sd = se.data[r.pix as usize].0;
+                for ch in 0..3 {
+                    r.y[ch] = pred[ch] + (r.y[ch] - pred[ch]).clamp(-k * sd[ch], k * sd[ch]);
+                }
+            } else if !perm.is_empty() {
+                let den: [f32; 3] = match (sy.as_str(), &se) {
+                    ("shuffle", Some(se)) => se.data[r.pix as usize].0,
+                    _ => pred,
+                };
+                for ch in 0..3 {
+                    r.y[ch] = pred[ch] + den[ch] * perm[ri][ch];
+                }
+            } else {
+                let mut gauss = || {
+                    // Box–Muller
+                    let (u1, u2) = (rng.next_f32().max(1e-7), rng.next_f32());
+                    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f32::consts::PI * u2).cos()
+                };
+                // "stderrcorr": channels correlated (ρ = 0.7, as the real residuals)
+                let g0 = gauss();
+                let rho: f32 = if sy == "stderrcorr" { 0.7 } else { 0.0 };
+                for ch in 0..3 {
+                    let g = rho.sqrt() * g0 + (1.0 - rho).sqrt() * gauss();
+                    r.y[ch] = pred[ch] + sd[ch] * g;
+                }
+            }
+        }
+        let d: [f32; 3] = std::array::from_fn(|ch| r.y[ch] - pred[ch]);
+        res.data[r.pix as usize] = opal::spectrum::Spectrum(d);
+        if let Some(se) = &se {
+            let s = se.data[r.pix as usize];
+            let z: [f32; 3] = std::array::from_fn(|ch| d[ch] / s[ch].max(1e-9));
+            nrm.data[r.pix as usize] = opal::spectrum::Spectrum(z);
+            for ch in 0..3 {
+                chi += (z[ch] as f64).powi(2);
+            }
+        }
+        for ch in 0..3 {
+            rel += (d[ch] as f64 / pred[ch].max(1e-9) as f64).powi(2);
+        }
+        n += 3;
+    }
+    eprintln!(
+        "diag {}: {} rows, chi2/n {:.3}, rms rel residual {:.4}",
+        v.name,
+        rows.len(),
+        chi / n.max(1) as f64,
+        (rel / n.max(1) as f64).sqrt()
+    );
+    for (what, img) in [("res", &res), ("z", &nrm)] {
+        let p = std::path::Path::new(&dir).join(format!("{}_{what}.exr", v.name));
+        if let Ok(f) = std::fs::File::create(p) {
+            let _ = opal::image::write::write_exr(img, std::io::BufWriter::new(f));
+        }
+    }
+}
+
 /// Super-resolved radiance map of one object from every view: values per texel (RGB radiance)
 /// and the observed mask. `(init, init_obs)` is the back-projected map and its mask (warm start;
-/// texels no pure pixel covers keep it).
+/// texels no pure pixel covers keep it). `shading` (per texel, any positive scale: the
+/// irradiance estimate `Ed + Ei`, smooth) makes the unknowns `K = B / shading`, so the edge prior
+/// acts on the albedo instead of the lighting's gradients and shadows, and weights the pixels for
+/// relative noise (each row divided by the pixel's luminance).
 /// Returns `None` when no pixel sees the object.
+#[allow(clippy::too_many_arguments)] // the scene, object, views and their buffers, the warm start, the shading, settings
 pub fn superres_luminance(
     scene: &Scene,
     shape: u32,
@@ -218,6 +378,7 @@ pub fn superres_luminance(
     views: &[View],
     pure: &[PureBuffer],
     (init, init_obs): (&[[f32; 3]], &[bool]),
+    shading: Option<&[f32]>,
     s: &SrSettings,
 ) -> Option<(Vec<[f32; 3]>, Vec<bool>)> {
     let n = a.width * a.height;
@@ -226,7 +387,12 @@ pub fn superres_luminance(
     }
     let mut rows: Vec<Row> = Vec::new();
     for (v, pb) in views.iter().zip(pure) {
-        rows.extend(view_rows(scene, shape, a, v, pb, s.subsamples.max(1)));
+        let mut vr = view_rows(scene, shape, a, v, pb, s.subsamples.max(1));
+        let gen_ss: u32 = std::env::var("OPAL_SR_SYNTH_SS").ok().and_then(|x| x.parse().ok()).unwrap_or(0);
+        let fine = if gen_ss > 0 { view_rows(scene, shape, a, v, pb, gen_ss) } else { Vec::new() };
+        let fine: std::collections::HashMap<u32, &Row> = fine.iter().map(|r| (r.pix, r)).collect();
+        diag_residual(v, &mut vr, a, &fine);
+        rows.extend(vr);
     }
     if rows.is_empty() {
         return None;
@@ -250,18 +416,58 @@ pub fn superres_luminance(
     // scale: mean luminance of the observations
     let mean = rows.iter().map(|r| super::luminance(r.y) as f64).sum::<f64>() / rows.len() as f64;
     let scale = if mean > 0.0 { mean as f32 } else { 1.0 };
+    // shading: the unknowns are K = B / sh (sh normalised to mean 1 over the unknowns), so the
+    // edge prior acts on the albedo, not on the lighting's gradients and shadows
+    let mut sh = vec![1f32; m];
+    if let Some(sd) = shading {
+        let mean = texel_of.iter().map(|&t| sd[t].max(0.0) as f64).sum::<f64>() / m.max(1) as f64;
+        if mean > 0.0 {
+            for (j, &t) in texel_of.iter().enumerate() {
+                sh[j] = (sd[t] as f64 / mean).max(1e-3) as f32;
+            }
+        }
+    }
+    // with a shading, rows are weighted for relative noise (σ ∝ y, as the photos' Monte-Carlo
+    // or shot noise): each row scaled by 1/y (luminance), normalised to mean square 1
+    let relw = shading.is_some();
+    let rs: Vec<f32> = if relw {
+        // σ_p from the warm-start map through the operator, not from the pixel's own value: 1/y_p²
+        // of a noisy y_p would bias the fit low by the relative variance (−0.8 % measured on
+        // the reference short box)
+        let inv: Vec<f64> = rows
+            .iter()
+            .map(|r| {
+                let pred: f64 = r
+                    .entries
+                    .iter()
+                    .map(|&(c, v)| v as f64 * super::luminance(init[c as usize]) as f64)
+                    .sum::<f64>();
+                let y = if init_obs.get(r.entries[0].0 as usize).copied().unwrap_or(false) && pred > 0.0 {
+                    pred
+                } else {
+                    super::luminance(r.y) as f64
+                };
+                1.0 / y.max(1e-3 * mean)
+            })
+            .collect();
+        let msq = (inv.iter().map(|v| v * v).sum::<f64>() / inv.len() as f64).sqrt();
+        inv.iter().map(|v| (v / msq) as f32).collect()
+    } else {
+        vec![1.0; rows.len()]
+    };
     let mut ptr = Vec::with_capacity(rows.len() + 1);
     ptr.push(0);
     let mut col = Vec::new();
     let mut val = Vec::new();
     let mut y = Vec::with_capacity(rows.len());
-    for r in &rows {
+    for (r, &w) in rows.iter().zip(&rs) {
         for &(c, v) in &r.entries {
-            col.push(idx[c as usize]);
-            val.push(v);
+            let j = idx[c as usize];
+            col.push(j);
+            val.push(v * sh[j as usize] * w);
         }
         ptr.push(col.len());
-        y.push(r.y.map(|c| c / scale));
+        y.push(r.y.map(|c| c * w / scale));
     }
     drop(rows);
     let amat = Csr { ptr, col, val, ncols: m };
@@ -302,9 +508,9 @@ pub fn superres_luminance(
         .map(|j| {
             let t = texel_of[j];
             if init_obs.get(t).copied().unwrap_or(false) {
-                init[t].map(|c| c / scale)
+                init[t].map(|c| c / scale / sh[j])
             } else {
-                aty[j].map(|c| c / colw[t].max(1e-12))
+                aty[j].map(|c| c / (colw[t].max(1e-12) * sh[j] * sh[j]))
             }
         })
         .collect();
@@ -358,7 +564,11 @@ pub fn superres_luminance(
         wts.par_iter_mut().zip(edges.par_iter()).with_min_len(1024).for_each(|(w, e)| {
             let (p, q) = (x[e.0 as usize], x[e.1 as usize]);
             let g = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
-            *w = lambda / g.max(s.eps);
+            *w = if s.exponent == 1.0 {
+                lambda / g.max(s.eps)
+            } else {
+                lambda * (g * g + s.eps * s.eps).powf(0.5 * (s.exponent - 2.0))
+            };
         });
         // operator M x = Aᵀ A x + Σ_e w_e (x_p − x_q)(e_p − e_q), Jacobi preconditioner diag(M)
         diag.par_iter_mut().enumerate().with_min_len(1024).for_each(|(j, d)| {
@@ -427,7 +637,7 @@ pub fn superres_luminance(
     let mut out = init.to_vec();
     let mut obs = init_obs.to_vec();
     for (j, &t) in texel_of.iter().enumerate() {
-        out[t] = x[j].map(|c| (c * scale).max(0.0));
+        out[t] = x[j].map(|c| (c * sh[j] * scale).max(0.0));
         obs[t] |= colw[t] >= s.min_weight && a.texel_tri[t] != NO_TRI;
     }
     Some((out, obs))
@@ -523,9 +733,17 @@ mod tests {
         assert!(a.kept_uvs);
         let pure: Vec<_> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
         let (bp, bp_obs) = luminance_map(&scene, k as u32, &a, &views, &pure);
-        let (sr, sr_obs) =
-            superres_luminance(&scene, k as u32, &a, &views, &pure, (&bp, &bp_obs), &SrSettings::default())
-                .unwrap();
+        let (sr, sr_obs) = superres_luminance(
+            &scene,
+            k as u32,
+            &a,
+            &views,
+            &pure,
+            (&bp, &bp_obs),
+            None,
+            &SrSettings::default(),
+        )
+        .unwrap();
         let both: Vec<bool> = bp_obs.iter().zip(&sr_obs).map(|(a, b)| *a && *b).collect();
         let seen = both.iter().filter(|&&b| b).count();
         assert!(seen > truth.width * truth.height / 2, "{seen}");
