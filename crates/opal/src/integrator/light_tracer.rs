@@ -78,11 +78,23 @@ pub struct LightTraceSettings {
     pub rr_depth: i32,
     /// Seed.
     pub seed: u64,
+    /// Deposit the first hits (direct light) into [`IrradianceMaps::direct`]. `false`: first hits
+    /// are not deposited and no direct accumulator is allocated ([`IrradianceMaps::direct`] is
+    /// empty), for callers that use the indirect map only; the paths, their random numbers and
+    /// the indirect map are exactly those of a pass with `true`. Default `true`.
+    pub direct: bool,
 }
 
 impl Default for LightTraceSettings {
     fn default() -> Self {
-        LightTraceSettings { paths: 1_000_000, batch_size: 1 << 18, max_depth: -1, rr_depth: 5, seed: 0 }
+        LightTraceSettings {
+            paths: 1_000_000,
+            batch_size: 1 << 18,
+            max_depth: -1,
+            rr_depth: 5,
+            seed: 0,
+            direct: true,
+        }
     }
 }
 
@@ -93,7 +105,8 @@ pub struct IrradianceMaps {
     pub width: usize,
     /// Map height.
     pub height: usize,
-    /// Irradiance of first hits (direct light), W·m⁻².
+    /// Irradiance of first hits (direct light), W·m⁻²; empty when the pass ran with
+    /// [`LightTraceSettings::direct`] `= false`.
     pub direct: Vec<[f64; 3]>,
     /// Irradiance of later hits (indirect light), W·m⁻².
     pub indirect: Vec<[f64; 3]>,
@@ -184,7 +197,9 @@ impl FixedPoint {
 /// Integer irradiance sums of one shape (one worker).
 struct ShapeAcc {
     width: usize,
-    /// `[r, g, b]` per texel, flat (a zeroed `Vec<i64>` is allocated as fresh zero pages).
+    height: usize,
+    /// `[r, g, b]` per texel, flat (a zeroed `Vec<i64>` is allocated as fresh zero pages); empty
+    /// without direct deposits.
     direct: Vec<i64>,
     indirect: Vec<i64>,
     /// Sum of |units| of every deposit (exact): bounds every texel's sum.
@@ -193,13 +208,14 @@ struct ShapeAcc {
 
 type Acc = Vec<Option<ShapeAcc>>;
 
-fn empty_acc(targets: &[Option<IrradianceTarget>]) -> Acc {
+fn empty_acc(targets: &[Option<IrradianceTarget>], direct: bool) -> Acc {
     targets
         .iter()
         .map(|t| {
             t.as_ref().map(|t| ShapeAcc {
                 width: t.width,
-                direct: vec![0; 3 * t.width * t.height],
+                height: t.height,
+                direct: if direct { vec![0; 3 * t.width * t.height] } else { Vec::new() },
                 indirect: vec![0; 3 * t.width * t.height],
                 total: 0,
             })
@@ -257,7 +273,7 @@ fn trace_fixed(
     let results: Vec<(Acc, u64)> = (0..workers)
         .into_par_iter()
         .map(|_| {
-            let mut sink = Sink::new(empty_acc(targets));
+            let mut sink = Sink::new(empty_acc(targets, s.direct));
             let mut bad = 0u64;
             loop {
                 let b = next.fetch_add(1, Ordering::Relaxed);
@@ -313,8 +329,7 @@ fn trace_fixed(
                     })
                     .collect()
             };
-            let height = m.direct.len() / (3 * m.width.max(1));
-            let width = m.width;
+            let (width, height) = (m.width, m.height);
             let direct = reduce(m.direct, true);
             let indirect = reduce(m.indirect, false);
             Some(IrradianceMaps { width, height, direct, indirect })
@@ -478,7 +493,7 @@ fn trace_path(
         let front = wo.dot(pr.ng) > 0.0;
         let b0 = 1.0 - h.b1 - h.b2;
         let uv = pr.uv[0] * b0 + pr.uv[1] * h.b1 + pr.uv[2] * h.b2;
-        if front && pr.factor > 0.0 {
+        if front && pr.factor > 0.0 && (depth > 1 || s.direct) {
             let (w, hgt) = (pr.width as usize, pr.height as usize);
             let x = ((uv.x * w as f32) as i64).clamp(0, w as i64 - 1) as usize;
             let y = ((uv.y * hgt as f32) as i64).clamp(0, hgt as i64 - 1) as usize;
