@@ -194,14 +194,67 @@ impl FixedPoint {
     }
 }
 
+/// Integer sums of one map, `[r, g, b]` per texel, flat: the exact sum of a channel is
+/// `fine[j] + spill[j]`. Deposits are added into the `i32` cells (half the memory traffic and
+/// footprint of `i64` cells: the adds are cache and TLB misses); an addition that would
+/// overflow moves the cell's content into the `i64` spill map first (exact carry), a value beyond
+/// `i32` goes to the spill map directly. A cell overflows after ≈ 2⁷ deposits of the reference
+/// size (2²⁴ units), so about one deposit in a hundred touches the spill map, which is
+/// allocated at its first use (zeroed pages: only the pages touched become resident).
+struct Cells {
+    fine: Vec<i32>,
+    spill: Vec<i64>,
+}
+
+impl Cells {
+    /// `n` channels (3 per texel), all zero.
+    fn new(n: usize) -> Cells {
+        Cells { fine: vec![0; n], spill: Vec::new() }
+    }
+
+    /// Adds `v` to channels `i..i + 3`.
+    #[inline(always)]
+    fn add(&mut self, i: usize, v: [i64; 3]) {
+        let n = self.fine.len();
+        let cell = &mut self.fine[i..i + 3];
+        for c in 0..3 {
+            match i32::try_from(v[c]) {
+                Ok(x) => match cell[c].checked_add(x) {
+                    Some(y) => cell[c] = y,
+                    None => {
+                        let old = std::mem::replace(&mut cell[c], x);
+                        spill_add(&mut self.spill, n, i + c, old as i64);
+                    }
+                },
+                Err(_) => spill_add(&mut self.spill, n, i + c, v[c]),
+            }
+        }
+    }
+
+    /// The sum of channel `j` (wrapping: exact while no texel's true sum reaches 2⁶³).
+    #[inline]
+    fn get(&self, j: usize) -> i64 {
+        (self.fine[j] as i64).wrapping_add(self.spill.get(j).copied().unwrap_or(0))
+    }
+}
+
+/// Adds `v` to channel `j` of a spill map of `n` channels, allocated at its first use.
+#[cold]
+#[inline(never)]
+fn spill_add(spill: &mut Vec<i64>, n: usize, j: usize, v: i64) {
+    if spill.is_empty() {
+        *spill = vec![0; n];
+    }
+    spill[j] = spill[j].wrapping_add(v);
+}
+
 /// Integer irradiance sums of one shape (one worker).
 struct ShapeAcc {
     width: usize,
     height: usize,
-    /// `[r, g, b]` per texel, flat (a zeroed `Vec<i64>` is allocated as fresh zero pages); empty
-    /// without direct deposits.
-    direct: Vec<i64>,
-    indirect: Vec<i64>,
+    /// Empty without direct deposits.
+    direct: Cells,
+    indirect: Cells,
     /// Sum of |units| of every deposit (exact): bounds every texel's sum.
     total: u128,
 }
@@ -215,8 +268,8 @@ fn empty_acc(targets: &[Option<IrradianceTarget>], direct: bool) -> Acc {
             t.as_ref().map(|t| ShapeAcc {
                 width: t.width,
                 height: t.height,
-                direct: if direct { vec![0; 3 * t.width * t.height] } else { Vec::new() },
-                indirect: vec![0; 3 * t.width * t.height],
+                direct: Cells::new(if direct { 3 * t.width * t.height } else { 0 }),
+                indirect: Cells::new(3 * t.width * t.height),
                 total: 0,
             })
         })
@@ -309,20 +362,16 @@ fn trace_fixed(
         .map(|(k, m)| {
             let m = m.take()?;
             let unit = fp.unit[k];
-            let reduce = |own: Vec<i64>, direct: bool| -> Vec<[f64; 3]> {
-                own.par_chunks_exact(3)
-                    .enumerate()
-                    .map(|(i, v)| {
-                        let mut sum = [v[0], v[1], v[2]];
+            let reduce = |own: &Cells, direct: bool| -> Vec<[f64; 3]> {
+                (0..own.fine.len() / 3)
+                    .into_par_iter()
+                    .map(|i| {
+                        let mut sum: [i64; 3] = std::array::from_fn(|c| own.get(3 * i + c));
                         for a in rest.iter() {
                             let o = a[k].as_ref().expect("same targets");
-                            let o = if direct {
-                                &o.direct[3 * i..3 * i + 3]
-                            } else {
-                                &o.indirect[3 * i..3 * i + 3]
-                            };
-                            for c in 0..3 {
-                                sum[c] = sum[c].wrapping_add(o[c]);
+                            let o = if direct { &o.direct } else { &o.indirect };
+                            for (c, x) in sum.iter_mut().enumerate() {
+                                *x = x.wrapping_add(o.get(3 * i + c));
                             }
                         }
                         sum.map(|x| x as f64 * unit)
@@ -330,8 +379,8 @@ fn trace_fixed(
                     .collect()
             };
             let (width, height) = (m.width, m.height);
-            let direct = reduce(m.direct, true);
-            let indirect = reduce(m.indirect, false);
+            let direct = reduce(&m.direct, true);
+            let indirect = reduce(&m.indirect, false);
             Some(IrradianceMaps { width, height, direct, indirect })
         })
         .collect();
@@ -578,7 +627,7 @@ impl Sink {
     #[inline]
     fn push(&mut self, p: Pending) {
         if let Some(m) = self.acc[p.shape].as_ref() {
-            prefetch(if p.direct { &m.direct[p.index] } else { &m.indirect[p.index] });
+            prefetch(if p.direct { &m.direct.fine[p.index] } else { &m.indirect.fine[p.index] });
         }
         if self.len == QUEUE {
             let old = std::mem::replace(&mut self.ring[self.head], p);
@@ -613,10 +662,9 @@ impl Pending {
     #[inline]
     fn apply(self, acc: &mut Acc) {
         if let Some(m) = acc[self.shape].as_mut() {
-            let i = self.index;
-            let cell = if self.direct { &mut m.direct[i..i + 3] } else { &mut m.indirect[i..i + 3] };
-            for (a, v) in cell.iter_mut().zip(self.value) {
-                *a = a.wrapping_add(v);
+            let cells = if self.direct { &mut m.direct } else { &mut m.indirect };
+            cells.add(self.index, self.value);
+            for v in self.value {
                 m.total += v.unsigned_abs() as u128;
             }
         }
@@ -1046,5 +1094,92 @@ mod tests {
         let (a, b) =
             (&out.maps[0].as_ref().unwrap().indirect[0][0], &want.maps[0].as_ref().unwrap().indirect[0][0]);
         assert!(*b > 0.0 && (a / b - 1.0).abs() < 1e-6, "{a} vs {b}");
+    }
+
+    #[test]
+    fn i32_cells_with_spill_sum_exactly_like_i64() {
+        // Random deposits into a few texels, including values that overflow a cell after a few
+        // additions and values beyond i32: the cell + spill sums equal plain i64 sums.
+        let mut cells = Cells::new(3 * 4);
+        let mut want = [0i64; 12];
+        let mut rng = Rng::new(5, 1, 0);
+        let mut spilled = false;
+        for n in 0..20_000u32 {
+            let i = 3 * (rng.next_u32() as usize % 4);
+            let scale = [1i64 << 8, 1 << 24, 1 << 30, 1 << 40][n as usize % 4];
+            let v: [i64; 3] = std::array::from_fn(|_| {
+                let x = (rng.next_f32() as f64 * scale as f64) as i64;
+                if rng.next_f32() < 0.3 { -x } else { x }
+            });
+            cells.add(i, v);
+            for c in 0..3 {
+                want[i + c] += v[c];
+            }
+            spilled |= !cells.spill.is_empty();
+        }
+        assert!(spilled, "the test must exercise the spill map");
+        for (j, w) in want.iter().enumerate() {
+            assert_eq!(cells.get(j), *w, "channel {j}");
+        }
+    }
+
+    #[test]
+    fn without_direct_deposits_the_indirect_map_is_unchanged() {
+        // Same scene as the furnace-like box test: first hits not deposited, direct map empty,
+        // indirect map bitwise that of the full pass (same paths and random numbers), for 1 and 2
+        // threads.
+        let mut inner = crate::scene::load::cube_mesh();
+        for t in &mut inner.indices {
+            t.swap(1, 2);
+        }
+        inner.normals.clear();
+        let light = {
+            let mut m = floor_quad(0.3);
+            for p in &mut m.positions {
+                *p = Vec3::new(p.x, 0.99, p.z);
+            }
+            m.indices = vec![[0, 2, 1], [0, 3, 2]];
+            m
+        };
+        let desc = SceneDesc {
+            shapes: vec![
+                ShapeDesc {
+                    id: "box".into(),
+                    mesh: inner.clone(),
+                    bsdf: diffuse(0.6),
+                    emitter: None,
+                    origin: None,
+                },
+                ShapeDesc {
+                    id: "light".into(),
+                    mesh: light,
+                    bsdf: diffuse(0.0),
+                    emitter: Some(AreaEmitterDesc { radiance: Spectrum::rgb(1.0, 2.0, 3.0) }),
+                    origin: None,
+                },
+            ],
+            ..Default::default()
+        };
+        let scene = Scene::build(&desc).unwrap();
+        let n_tris = inner.triangle_count();
+        let targets = [Some(IrradianceTarget { width: 4, height: 4, texel_area: vec![0.5; n_tris] }), None];
+        let full = LightTraceSettings { paths: 100_000, batch_size: 9_000, seed: 7, ..Default::default() };
+        let want = trace(&scene, &targets, &full, &|| {});
+        let wm = want.maps[0].as_ref().unwrap();
+        assert!(
+            wm.direct.iter().flatten().any(|&x| x > 0.0) && wm.indirect.iter().flatten().any(|&x| x > 0.0)
+        );
+        for threads in [1, 2] {
+            let s = LightTraceSettings { direct: false, ..full };
+            let got = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| trace(&scene, &targets, &s, &|| {}));
+            let m = got.maps[0].as_ref().unwrap();
+            assert!(m.direct.is_empty());
+            assert_eq!((m.width, m.height), (4, 4));
+            assert_eq!(m.indirect, wm.indirect, "{threads} threads");
+        }
     }
 }
