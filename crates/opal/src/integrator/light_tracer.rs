@@ -8,7 +8,8 @@
 //! that contains the hit's `uv` (A_texel = world area of one texel of the hit triangle), i.e.
 //! an estimate of the incident irradiance E = ∫ L cos dω [W·m⁻²] averaged over the texel.
 //! Deposits of the first hit (direct light) and of later hits (indirect light) go into two
-//! separate maps. The path then scatters with the scene's BSDF in
+//! separate maps; with [`LightTraceSettings::direct`] `= false` the first hits are not deposited
+//! (no direct map: half the accumulator memory; same paths, same indirect map). The path then scatters with the scene's BSDF in
 //! [`TransportMode::Importance`] and Russian roulette from `rr_depth`.
 //!
 //! Determinism: paths are split into fixed batches of `batch_size`; batch `b` draws its numbers
@@ -19,7 +20,7 @@
 //! shared counter and add their deposits into their own integer maps, which live for the whole
 //! pass (no per-batch maps to zero and merge); the worker maps are summed at the end. Integer
 //! addition is associative and commutative, so which worker traced which batch does not matter.
-//! A deposit `v = β_c / (N · A_texel)` is stored as `round(β_c · f)` units (`i64`), with
+//! A deposit `v = β_c / (N · A_texel)` is stored as `round(β_c · f)` units, with
 //! `f = 2²⁴ · A_min / (A_texel · β_ref)` per triangle (`A_min` = smallest texel area of the shape,
 //! `β_ref = max_l max_c Φ_l,c / pmf_l` = the initial weight of a path from the brightest light
 //! per pick): an unscattered path's deposit into the shape's smallest texel is 2²⁴ units.
@@ -28,6 +29,10 @@
 //! agreement with a plain f64 pass to 10⁻⁶). *Overflow*: a texel's sum would need ~2³⁸ deposits
 //! of the reference size; the exact (u128) sum of |units| per shape is checked at the end, and if
 //! it reaches 2⁶³ the pass is traced again with a coarser unit (deterministic; never seen).
+//! The per-texel sums live in `i32` cells with an exact carry into a lazily allocated `i64`
+//! spill map (`Cells`: an addition that would overflow the cell first moves the cell's content
+//! to the spill map), so a texel's sum is `cell + spill` exactly, as with `i64` cells, at half
+//! the memory footprint of the deposit adds.
 //!
 //! **Speed** (see `docs/performance.md`): per-triangle hit data precomputed once per pass (unit
 //! geometric normal, corner uvs and normals, deposit factor, map size, material), so a hit costs
@@ -42,7 +47,9 @@
 //! small area light against a quadrature of ∫ L cos dω; indirect light in a closed furnace-like
 //! box against the path tracer's estimate; thread-count independence; the fast paths and the
 //! fixed-point sums against the generic f64 pass (a bitmap-textured floor, a two-sided wall,
-//! Russian roulette) to 10⁻⁶, identical for 1, 2 and 3 threads.
+//! Russian roulette) to 10⁻⁶, identical for 1, 2 and 3 threads; the `i32` cells with spill
+//! against plain `i64` sums (random deposits up to 2⁴⁰ units); `direct: false` leaves the
+//! indirect map bitwise unchanged.
 
 use crate::bsdf::{Bxdf, TransportMode};
 use crate::math::{Frame, INV_PI, Vec2, Vec3};
