@@ -18,13 +18,6 @@
 //! of the BVH and brute force. Ties (two triangles at exactly the same `t`) keep the lowest
 //! index, like [`super::BruteForce`]. Padding lanes hold NaN vertices, which never hit.
 //!
-//! With AVX, the closest-hit query tests all groups independently (each against `ray.tmax`) and
-//! picks the smallest `t`, lowest index on ties, by a vector minimum at the end: the groups'
-//! tests then overlap in the pipeline instead of each waiting for the previous group's `tmax`.
-//! The result is the same as the sequential loop's (a triangle's test depends on `tmax` only
-//! through its final `t < tmax` filter); rays with an exact-zero edge function take the sequential
-//! loop. The any-hit query keeps the sequential loop (it stops at the first hit).
-//!
 //! The scene uses it instead of the BVH up to [`TINY_MAX`] triangles ([`crate::scene::Scene`]).
 //!
 //! Tests: unit tests below; `crates/opal/tests/accel.rs` (identical hits to brute force on random
@@ -40,10 +33,6 @@ pub const LANES: usize = 8;
 
 /// Largest triangle count for which the scene uses [`TinyAccel`] instead of the BVH.
 pub const TINY_MAX: usize = 64;
-
-/// Groups of the independent closest-hit test (`closest_avx`); larger soups take the
-/// sequential test.
-const MAX_GROUPS: usize = TINY_MAX / LANES;
 
 /// Eight triangles, structure of arrays: `v[vertex][axis][lane]`.
 #[derive(Clone, Copy, Debug)]
@@ -312,114 +301,12 @@ impl TinyAccel {
         best
     }
 
-    /// Closest hit with AVX, all groups tested independently of each other: every group's hits
-    /// are tested against `ray.tmax` only, and the closest one (the lowest index on ties) is
-    /// chosen at the end by a vector minimum, so the groups' tests overlap instead of waiting for
-    /// the previous group's `tmax` (a serial chain through a division, a store and a scalar
-    /// lane loop per group in [`Self::traverse_avx`]).
-    ///
-    /// Same result as [`Self::traverse_avx`]: each triangle's test does not depend on the
-    /// current `tmax` except through the final `t < tmax` filter, so "the smallest `t`, lowest
-    /// index on ties" over all triangles is what the sequential loop keeps. A ray for which some
-    /// edge function is exactly zero goes through [`Self::traverse_avx`] (its scalar fallback).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx")]
-    fn closest_avx(&self, ray: &Ray) -> Option<Hit> {
-        use std::arch::x86_64::*;
-        if self.groups.len() > MAX_GROUPS {
-            return self.traverse_avx::<false>(ray);
-        }
-        let r = ShearRay::new(ray);
-        let [kx, ky, kz] = r.k;
-        let (ox, oy, oz) = (_mm256_set1_ps(r.o[kx]), _mm256_set1_ps(r.o[ky]), _mm256_set1_ps(r.o[kz]));
-        let (sx, sy, sz) = (_mm256_set1_ps(r.sx), _mm256_set1_ps(r.sy), _mm256_set1_ps(r.sz));
-        let zero = _mm256_setzero_ps();
-        let one = _mm256_set1_ps(1.0);
-        let inf = _mm256_set1_ps(f32::INFINITY);
-        let tmax = _mm256_set1_ps(ray.tmax);
-        // per group: t where the lane hits, +∞ elsewhere; v/det and w/det
-        let mut ts = [inf; MAX_GROUPS];
-        let mut b1s = [zero; MAX_GROUPS];
-        let mut b2s = [zero; MAX_GROUPS];
-        let mut zany = 0;
-        let mut tmin = inf;
-        for (gi, g) in self.groups.iter().enumerate() {
-            // SAFETY: `Group` is 32-byte aligned and each `[f32; 8]` row is 32 bytes, so every
-            // row pointer is aligned and valid for 8 reads.
-            let ld = |v: usize, a: usize| unsafe { _mm256_load_ps(g.v[v][a].as_ptr()) };
-            let mut px = [zero; 3];
-            let mut py = [zero; 3];
-            let mut pz = [zero; 3];
-            for v in 0..3 {
-                let az = _mm256_sub_ps(ld(v, kz), oz);
-                px[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, kx), ox), _mm256_mul_ps(sx, az));
-                py[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, ky), oy), _mm256_mul_ps(sy, az));
-                pz[v] = _mm256_mul_ps(sz, az);
-            }
-            let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
-            let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
-            let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
-            let eq0 = |x| _mm256_cmp_ps::<_CMP_EQ_OQ>(x, zero);
-            let lt0 = |x| _mm256_cmp_ps::<_CMP_LT_OQ>(x, zero);
-            let gt0 = |x| _mm256_cmp_ps::<_CMP_GT_OQ>(x, zero);
-            zany |= _mm256_movemask_ps(_mm256_or_ps(_mm256_or_ps(eq0(u), eq0(v)), eq0(w)));
-            let neg = _mm256_or_ps(_mm256_or_ps(lt0(u), lt0(v)), lt0(w));
-            let pos = _mm256_or_ps(_mm256_or_ps(gt0(u), gt0(v)), gt0(w));
-            let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
-            let tt = _mm256_add_ps(
-                _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
-                _mm256_mul_ps(w, pz[2]),
-            );
-            let inv = _mm256_div_ps(one, det);
-            let t = _mm256_mul_ps(tt, inv);
-            let bad = _mm256_or_ps(_mm256_and_ps(neg, pos), _mm256_xor_ps(gt0(tt), gt0(det)));
-            let good = _mm256_and_ps(
-                _mm256_and_ps(_mm256_cmp_ps::<_CMP_NEQ_UQ>(det, zero), gt0(t)),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(t, tmax),
-            );
-            // hit lanes keep t (finite: 0 < t < tmax), the others +∞
-            let tm = _mm256_blendv_ps(inf, t, _mm256_andnot_ps(bad, good));
-            tmin = _mm256_min_ps(tmin, tm);
-            ts[gi] = tm;
-            b1s[gi] = _mm256_mul_ps(v, inv);
-            b2s[gi] = _mm256_mul_ps(w, inv);
-        }
-        if zany != 0 {
-            // Rare: an exact-zero edge function somewhere: the sequential test with its scalar
-            // fallback.
-            return self.traverse_avx::<false>(ray);
-        }
-        // horizontal minimum, broadcast
-        let m = _mm256_min_ps(tmin, _mm256_permute2f128_ps::<1>(tmin, tmin));
-        let m = _mm256_min_ps(m, _mm256_permute_ps::<0b01_00_11_10>(m));
-        let m = _mm256_min_ps(m, _mm256_permute_ps::<0b10_11_00_01>(m));
-        let best = _mm256_cvtss_f32(m);
-        if best == f32::INFINITY {
-            return None;
-        }
-        // the lowest index with that t
-        for gi in 0..self.groups.len() {
-            let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(ts[gi], m)) as u32;
-            if mask != 0 {
-                let l = mask.trailing_zeros() as usize;
-                let (mut b1, mut b2) = ([0.0f32; LANES], [0.0f32; LANES]);
-                // SAFETY: `b1`, `b2` hold 8 floats (unaligned stores).
-                unsafe {
-                    _mm256_storeu_ps(b1.as_mut_ptr(), b1s[gi]);
-                    _mm256_storeu_ps(b2.as_mut_ptr(), b2s[gi]);
-                }
-                return Some(Hit { t: best, prim: (gi * LANES + l) as u32, b1: b1[l], b2: b2[l] });
-            }
-        }
-        None
-    }
-
     #[inline(always)]
     fn dispatch<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         if std::is_x86_feature_detected!("avx") {
             // SAFETY: the CPU supports AVX (checked just above).
-            return unsafe { if ANY { self.traverse_avx::<ANY>(ray) } else { self.closest_avx(ray) } };
+            return unsafe { self.traverse_avx::<ANY>(ray) };
         }
         self.traverse::<ANY>(ray)
     }
@@ -437,18 +324,6 @@ impl TinyAccel {
     /// Closest hit computed without AVX (the portable lane loops), for tests.
     pub fn intersect_portable(&self, ray: &Ray) -> Option<Hit> {
         self.traverse::<false>(ray)
-    }
-
-    /// Closest hit by the sequential AVX loop (`None` without AVX), for tests: the default
-    /// [`Self::intersect`] tests all groups independently and must agree with it.
-    pub fn intersect_sequential(&self, ray: &Ray) -> Option<Option<Hit>> {
-        #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx") {
-            // SAFETY: the CPU supports AVX (checked just above).
-            return Some(unsafe { self.traverse_avx::<false>(ray) });
-        }
-        let _ = ray;
-        None
     }
 }
 
@@ -482,7 +357,7 @@ mod tests {
         // through the shared corner (0, 0): exact-zero edge functions
         let h = a.intersect(&Ray::new(Vec3::new(0.0, 0.0, 0.0), Vec3::Z)).unwrap();
         assert_eq!((h.prim, h.t), (1, 1.0));
-        // ties across groups (the groups are tested independently): still the lowest index
+        // ties across groups: still the lowest index
         for (i, j) in [(3usize, 12usize), (8, 16), (0, 31), (13, 21)] {
             let mut tris = vec![far; 32];
             tris[i] = tri;
@@ -511,9 +386,6 @@ mod tests {
                 let want = bf.intersect(&ray);
                 assert_eq!(a.intersect(&ray), want, "{ray:?}");
                 assert_eq!(a.intersect_portable(&ray), want, "{ray:?}");
-                if let Some(seq) = a.intersect_sequential(&ray) {
-                    assert_eq!(seq, want, "{ray:?}");
-                }
                 assert_eq!(a.occluded(&ray), bf.occluded(&ray));
             }
         }
