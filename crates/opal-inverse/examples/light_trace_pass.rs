@@ -6,7 +6,9 @@
 //! materials the scene's own. Prints paths, wall seconds, CPU seconds and paths/s.
 //!
 //! Run: `cargo run --release -p opal-inverse --example light_trace_pass -- [PATHS] [THREADS]`
-//! (PATHS default 100 000 000).
+//! (PATHS default 100 000 000). Environment: `RES` (one map resolution for every object instead
+//! of the adaptive ones), `BATCH` (paths per batch, default 2²⁰), `DIRECT=0` (no first-hit
+//! deposits, as in the de-lighting passes after the first).
 
 use opal::integrator::light_tracer::{self, IrradianceTarget, LightTraceSettings};
 use opal::math::Vec3;
@@ -59,7 +61,9 @@ fn main() {
     }
     let scene = Scene::build(&desc).expect("scene builds");
     let batch: u64 = std::env::var("BATCH").ok().map(|b| b.parse().expect("BATCH")).unwrap_or(1 << 20);
-    let s = LightTraceSettings { paths, seed: 1, batch_size: batch, ..Default::default() };
+    // DIRECT=0: no first-hit deposits (as the de-lighting passes after the first)
+    let direct = std::env::var("DIRECT").map_or(true, |d| d != "0");
+    let s = LightTraceSettings { paths, seed: 1, batch_size: batch, direct, ..Default::default() };
     let (c0, t0) = (cpu_seconds(), std::time::Instant::now());
     let out = light_tracer::trace(&scene, &targets, &s, &|| {});
     let (wall, cpu) = (t0.elapsed().as_secs_f64(), cpu_seconds() - c0);

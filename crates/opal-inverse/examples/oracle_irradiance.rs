@@ -30,7 +30,14 @@ fn main() {
         })
         .collect();
     let scene = Scene::build(&desc).expect("scene builds");
-    let s = LightTraceSettings { paths, seed: 12345, batch_size: 1 << 20, max_depth: -1, rr_depth: 5 };
+    let s = LightTraceSettings {
+        paths,
+        seed: 12345,
+        batch_size: 1 << 20,
+        max_depth: -1,
+        rr_depth: 5,
+        direct: true,
+    };
     let t0 = std::time::Instant::now();
     let o = light_tracer::trace(&scene, &targets, &s, &|| {});
     let m = o.maps[k].as_ref().unwrap();

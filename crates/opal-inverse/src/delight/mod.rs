@@ -198,7 +198,8 @@ pub struct IterationStats {
     /// Seconds of this iteration.
     pub seconds: f64,
     /// Per object: mean of the tracer's direct irradiance / light-sampled `Ed` (consistency
-    /// check of the two estimators; ≈ 1).
+    /// check of the two estimators; ≈ 1). Measured in the first iteration only (NaN after: the
+    /// later passes do not deposit first hits).
     pub direct_ratio: Vec<f64>,
 }
 
@@ -783,6 +784,9 @@ pub fn delight(
             max_depth: -1,
             rr_depth: 5,
             seed: s.seed.wrapping_add(k as u64),
+            // first-hit irradiance does not depend on the albedos: its diagnostic (`direct_ratio`)
+            // is measured in the first pass only; the method uses the indirect map
+            direct: k == 1,
         };
         let out = light_tracer::trace(&rscene, &targets, &lt, &|| {});
         light_paths += out.paths;
@@ -808,12 +812,12 @@ pub fn delight(
             // direct consistency (means over covered texels)
             let (mut a, mut b) = (0f64, 0f64);
             for i in 0..o.ed.len() {
-                if o.atlas.texel_tri[i] != NO_TRI {
+                if o.atlas.texel_tri[i] != NO_TRI && !m.direct.is_empty() {
                     a += luminance(m.direct[i].map(|x| x as f32)) as f64 / cov[i].max(1.0 / 16.0) as f64;
                     b += luminance(o.ed[i]) as f64;
                 }
             }
-            direct_ratio.push(if b > 0.0 { a / b } else { f64::NAN });
+            direct_ratio.push(if b > 0.0 && !m.direct.is_empty() { a / b } else { f64::NAN });
             // error map
             let n = o.l.len();
             let mut rel = vec![f32::NAN; n];

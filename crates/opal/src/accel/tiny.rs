@@ -357,6 +357,17 @@ mod tests {
         // through the shared corner (0, 0): exact-zero edge functions
         let h = a.intersect(&Ray::new(Vec3::new(0.0, 0.0, 0.0), Vec3::Z)).unwrap();
         assert_eq!((h.prim, h.t), (1, 1.0));
+        // ties across groups: still the lowest index
+        for (i, j) in [(3usize, 12usize), (8, 16), (0, 31), (13, 21)] {
+            let mut tris = vec![far; 32];
+            tris[i] = tri;
+            tris[j] = tri;
+            let a = TinyAccel::new(tris);
+            let h = a.intersect(&Ray::new(Vec3::new(0.2, 0.2, 0.0), Vec3::Z)).unwrap();
+            assert_eq!((h.prim, h.t), (i as u32, 1.0));
+            let h = a.intersect(&Ray::new(Vec3::new(0.2, 0.2, 1.5), -Vec3::Z)).unwrap();
+            assert_eq!((h.prim, h.t), (i as u32, 0.5));
+        }
     }
 
     #[test]

@@ -8,7 +8,8 @@
 //! that contains the hit's `uv` (A_texel = world area of one texel of the hit triangle), i.e.
 //! an estimate of the incident irradiance E = ∫ L cos dω [W·m⁻²] averaged over the texel.
 //! Deposits of the first hit (direct light) and of later hits (indirect light) go into two
-//! separate maps. The path then scatters with the scene's BSDF in
+//! separate maps; with [`LightTraceSettings::direct`] `= false` the first hits are not deposited
+//! (no direct map: half the accumulator memory; same paths, same indirect map). The path then scatters with the scene's BSDF in
 //! [`TransportMode::Importance`] and Russian roulette from `rr_depth`.
 //!
 //! Determinism: paths are split into fixed batches of `batch_size`; batch `b` draws its numbers
@@ -19,7 +20,7 @@
 //! shared counter and add their deposits into their own integer maps, which live for the whole
 //! pass (no per-batch maps to zero and merge); the worker maps are summed at the end. Integer
 //! addition is associative and commutative, so which worker traced which batch does not matter.
-//! A deposit `v = β_c / (N · A_texel)` is stored as `round(β_c · f)` units (`i64`), with
+//! A deposit `v = β_c / (N · A_texel)` is stored as `round(β_c · f)` units, with
 //! `f = 2²⁴ · A_min / (A_texel · β_ref)` per triangle (`A_min` = smallest texel area of the shape,
 //! `β_ref = max_l max_c Φ_l,c / pmf_l` = the initial weight of a path from the brightest light
 //! per pick): an unscattered path's deposit into the shape's smallest texel is 2²⁴ units.
@@ -28,6 +29,10 @@
 //! agreement with a plain f64 pass to 10⁻⁶). *Overflow*: a texel's sum would need ~2³⁸ deposits
 //! of the reference size; the exact (u128) sum of |units| per shape is checked at the end, and if
 //! it reaches 2⁶³ the pass is traced again with a coarser unit (deterministic; never seen).
+//! The per-texel sums live in `i32` cells with an exact carry into a lazily allocated `i64`
+//! spill map (`Cells`: an addition that would overflow the cell first moves the cell's content
+//! to the spill map), so a texel's sum is `cell + spill` exactly, as with `i64` cells, at half
+//! the memory footprint of the deposit adds.
 //!
 //! **Speed** (see `docs/performance.md`): per-triangle hit data precomputed once per pass (unit
 //! geometric normal, corner uvs and normals, deposit factor, map size, material), so a hit costs
@@ -42,7 +47,9 @@
 //! small area light against a quadrature of ∫ L cos dω; indirect light in a closed furnace-like
 //! box against the path tracer's estimate; thread-count independence; the fast paths and the
 //! fixed-point sums against the generic f64 pass (a bitmap-textured floor, a two-sided wall,
-//! Russian roulette) to 10⁻⁶, identical for 1, 2 and 3 threads.
+//! Russian roulette) to 10⁻⁶, identical for 1, 2 and 3 threads; the `i32` cells with spill
+//! against plain `i64` sums (random deposits up to 2⁴⁰ units); `direct: false` leaves the
+//! indirect map bitwise unchanged.
 
 use crate::bsdf::{Bxdf, TransportMode};
 use crate::math::{Frame, INV_PI, Vec2, Vec3};
@@ -78,11 +85,23 @@ pub struct LightTraceSettings {
     pub rr_depth: i32,
     /// Seed.
     pub seed: u64,
+    /// Deposit the first hits (direct light) into [`IrradianceMaps::direct`]. `false`: first hits
+    /// are not deposited and no direct accumulator is allocated ([`IrradianceMaps::direct`] is
+    /// empty), for callers that use the indirect map only; the paths, their random numbers and
+    /// the indirect map are exactly those of a pass with `true`. Default `true`.
+    pub direct: bool,
 }
 
 impl Default for LightTraceSettings {
     fn default() -> Self {
-        LightTraceSettings { paths: 1_000_000, batch_size: 1 << 18, max_depth: -1, rr_depth: 5, seed: 0 }
+        LightTraceSettings {
+            paths: 1_000_000,
+            batch_size: 1 << 18,
+            max_depth: -1,
+            rr_depth: 5,
+            seed: 0,
+            direct: true,
+        }
     }
 }
 
@@ -93,7 +112,8 @@ pub struct IrradianceMaps {
     pub width: usize,
     /// Map height.
     pub height: usize,
-    /// Irradiance of first hits (direct light), W·m⁻².
+    /// Irradiance of first hits (direct light), W·m⁻²; empty when the pass ran with
+    /// [`LightTraceSettings::direct`] `= false`.
     pub direct: Vec<[f64; 3]>,
     /// Irradiance of later hits (indirect light), W·m⁻².
     pub indirect: Vec<[f64; 3]>,
@@ -181,26 +201,82 @@ impl FixedPoint {
     }
 }
 
+/// Integer sums of one map, `[r, g, b]` per texel, flat: the exact sum of a channel is
+/// `fine[j] + spill[j]`. Deposits are added into the `i32` cells (half the memory traffic and
+/// footprint of `i64` cells: the adds are cache and TLB misses); an addition that would
+/// overflow moves the cell's content into the `i64` spill map first (exact carry), a value beyond
+/// `i32` goes to the spill map directly. A cell overflows after ≈ 2⁷ deposits of the reference
+/// size (2²⁴ units), so about one deposit in a hundred touches the spill map, which is
+/// allocated at its first use (zeroed pages: only the pages touched become resident).
+struct Cells {
+    fine: Vec<i32>,
+    spill: Vec<i64>,
+}
+
+impl Cells {
+    /// `n` channels (3 per texel), all zero.
+    fn new(n: usize) -> Cells {
+        Cells { fine: vec![0; n], spill: Vec::new() }
+    }
+
+    /// Adds `v` to channels `i..i + 3`.
+    #[inline(always)]
+    fn add(&mut self, i: usize, v: [i64; 3]) {
+        let n = self.fine.len();
+        let cell = &mut self.fine[i..i + 3];
+        for c in 0..3 {
+            match i32::try_from(v[c]) {
+                Ok(x) => match cell[c].checked_add(x) {
+                    Some(y) => cell[c] = y,
+                    None => {
+                        let old = std::mem::replace(&mut cell[c], x);
+                        spill_add(&mut self.spill, n, i + c, old as i64);
+                    }
+                },
+                Err(_) => spill_add(&mut self.spill, n, i + c, v[c]),
+            }
+        }
+    }
+
+    /// The sum of channel `j` (wrapping: exact while no texel's true sum reaches 2⁶³).
+    #[inline]
+    fn get(&self, j: usize) -> i64 {
+        (self.fine[j] as i64).wrapping_add(self.spill.get(j).copied().unwrap_or(0))
+    }
+}
+
+/// Adds `v` to channel `j` of a spill map of `n` channels, allocated at its first use.
+#[cold]
+#[inline(never)]
+fn spill_add(spill: &mut Vec<i64>, n: usize, j: usize, v: i64) {
+    if spill.is_empty() {
+        *spill = vec![0; n];
+    }
+    spill[j] = spill[j].wrapping_add(v);
+}
+
 /// Integer irradiance sums of one shape (one worker).
 struct ShapeAcc {
     width: usize,
-    /// `[r, g, b]` per texel, flat (a zeroed `Vec<i64>` is allocated as fresh zero pages).
-    direct: Vec<i64>,
-    indirect: Vec<i64>,
+    height: usize,
+    /// Empty without direct deposits.
+    direct: Cells,
+    indirect: Cells,
     /// Sum of |units| of every deposit (exact): bounds every texel's sum.
     total: u128,
 }
 
 type Acc = Vec<Option<ShapeAcc>>;
 
-fn empty_acc(targets: &[Option<IrradianceTarget>]) -> Acc {
+fn empty_acc(targets: &[Option<IrradianceTarget>], direct: bool) -> Acc {
     targets
         .iter()
         .map(|t| {
             t.as_ref().map(|t| ShapeAcc {
                 width: t.width,
-                direct: vec![0; 3 * t.width * t.height],
-                indirect: vec![0; 3 * t.width * t.height],
+                height: t.height,
+                direct: Cells::new(if direct { 3 * t.width * t.height } else { 0 }),
+                indirect: Cells::new(3 * t.width * t.height),
                 total: 0,
             })
         })
@@ -257,7 +333,7 @@ fn trace_fixed(
     let results: Vec<(Acc, u64)> = (0..workers)
         .into_par_iter()
         .map(|_| {
-            let mut sink = Sink::new(empty_acc(targets));
+            let mut sink = Sink::new(empty_acc(targets, s.direct));
             let mut bad = 0u64;
             loop {
                 let b = next.fetch_add(1, Ordering::Relaxed);
@@ -293,30 +369,25 @@ fn trace_fixed(
         .map(|(k, m)| {
             let m = m.take()?;
             let unit = fp.unit[k];
-            let reduce = |own: Vec<i64>, direct: bool| -> Vec<[f64; 3]> {
-                own.par_chunks_exact(3)
-                    .enumerate()
-                    .map(|(i, v)| {
-                        let mut sum = [v[0], v[1], v[2]];
+            let reduce = |own: &Cells, direct: bool| -> Vec<[f64; 3]> {
+                (0..own.fine.len() / 3)
+                    .into_par_iter()
+                    .map(|i| {
+                        let mut sum: [i64; 3] = std::array::from_fn(|c| own.get(3 * i + c));
                         for a in rest.iter() {
                             let o = a[k].as_ref().expect("same targets");
-                            let o = if direct {
-                                &o.direct[3 * i..3 * i + 3]
-                            } else {
-                                &o.indirect[3 * i..3 * i + 3]
-                            };
-                            for c in 0..3 {
-                                sum[c] = sum[c].wrapping_add(o[c]);
+                            let o = if direct { &o.direct } else { &o.indirect };
+                            for (c, x) in sum.iter_mut().enumerate() {
+                                *x = x.wrapping_add(o.get(3 * i + c));
                             }
                         }
                         sum.map(|x| x as f64 * unit)
                     })
                     .collect()
             };
-            let height = m.direct.len() / (3 * m.width.max(1));
-            let width = m.width;
-            let direct = reduce(m.direct, true);
-            let indirect = reduce(m.indirect, false);
+            let (width, height) = (m.width, m.height);
+            let direct = reduce(&m.direct, true);
+            let indirect = reduce(&m.indirect, false);
             Some(IrradianceMaps { width, height, direct, indirect })
         })
         .collect();
@@ -478,7 +549,7 @@ fn trace_path(
         let front = wo.dot(pr.ng) > 0.0;
         let b0 = 1.0 - h.b1 - h.b2;
         let uv = pr.uv[0] * b0 + pr.uv[1] * h.b1 + pr.uv[2] * h.b2;
-        if front && pr.factor > 0.0 {
+        if front && pr.factor > 0.0 && (depth > 1 || s.direct) {
             let (w, hgt) = (pr.width as usize, pr.height as usize);
             let x = ((uv.x * w as f32) as i64).clamp(0, w as i64 - 1) as usize;
             let y = ((uv.y * hgt as f32) as i64).clamp(0, hgt as i64 - 1) as usize;
@@ -563,7 +634,7 @@ impl Sink {
     #[inline]
     fn push(&mut self, p: Pending) {
         if let Some(m) = self.acc[p.shape].as_ref() {
-            prefetch(if p.direct { &m.direct[p.index] } else { &m.indirect[p.index] });
+            prefetch(if p.direct { &m.direct.fine[p.index] } else { &m.indirect.fine[p.index] });
         }
         if self.len == QUEUE {
             let old = std::mem::replace(&mut self.ring[self.head], p);
@@ -598,10 +669,9 @@ impl Pending {
     #[inline]
     fn apply(self, acc: &mut Acc) {
         if let Some(m) = acc[self.shape].as_mut() {
-            let i = self.index;
-            let cell = if self.direct { &mut m.direct[i..i + 3] } else { &mut m.indirect[i..i + 3] };
-            for (a, v) in cell.iter_mut().zip(self.value) {
-                *a = a.wrapping_add(v);
+            let cells = if self.direct { &mut m.direct } else { &mut m.indirect };
+            cells.add(self.index, self.value);
+            for v in self.value {
                 m.total += v.unsigned_abs() as u128;
             }
         }
@@ -1031,5 +1101,92 @@ mod tests {
         let (a, b) =
             (&out.maps[0].as_ref().unwrap().indirect[0][0], &want.maps[0].as_ref().unwrap().indirect[0][0]);
         assert!(*b > 0.0 && (a / b - 1.0).abs() < 1e-6, "{a} vs {b}");
+    }
+
+    #[test]
+    fn i32_cells_with_spill_sum_exactly_like_i64() {
+        // Random deposits into a few texels, including values that overflow a cell after a few
+        // additions and values beyond i32: the cell + spill sums equal plain i64 sums.
+        let mut cells = Cells::new(3 * 4);
+        let mut want = [0i64; 12];
+        let mut rng = Rng::new(5, 1, 0);
+        let mut spilled = false;
+        for n in 0..20_000u32 {
+            let i = 3 * (rng.next_u32() as usize % 4);
+            let scale = [1i64 << 8, 1 << 24, 1 << 30, 1 << 40][n as usize % 4];
+            let v: [i64; 3] = std::array::from_fn(|_| {
+                let x = (rng.next_f32() as f64 * scale as f64) as i64;
+                if rng.next_f32() < 0.3 { -x } else { x }
+            });
+            cells.add(i, v);
+            for c in 0..3 {
+                want[i + c] += v[c];
+            }
+            spilled |= !cells.spill.is_empty();
+        }
+        assert!(spilled, "the test must exercise the spill map");
+        for (j, w) in want.iter().enumerate() {
+            assert_eq!(cells.get(j), *w, "channel {j}");
+        }
+    }
+
+    #[test]
+    fn without_direct_deposits_the_indirect_map_is_unchanged() {
+        // Same scene as the furnace-like box test: first hits not deposited, direct map empty,
+        // indirect map bitwise that of the full pass (same paths and random numbers), for 1 and 2
+        // threads.
+        let mut inner = crate::scene::load::cube_mesh();
+        for t in &mut inner.indices {
+            t.swap(1, 2);
+        }
+        inner.normals.clear();
+        let light = {
+            let mut m = floor_quad(0.3);
+            for p in &mut m.positions {
+                *p = Vec3::new(p.x, 0.99, p.z);
+            }
+            m.indices = vec![[0, 2, 1], [0, 3, 2]];
+            m
+        };
+        let desc = SceneDesc {
+            shapes: vec![
+                ShapeDesc {
+                    id: "box".into(),
+                    mesh: inner.clone(),
+                    bsdf: diffuse(0.6),
+                    emitter: None,
+                    origin: None,
+                },
+                ShapeDesc {
+                    id: "light".into(),
+                    mesh: light,
+                    bsdf: diffuse(0.0),
+                    emitter: Some(AreaEmitterDesc { radiance: Spectrum::rgb(1.0, 2.0, 3.0) }),
+                    origin: None,
+                },
+            ],
+            ..Default::default()
+        };
+        let scene = Scene::build(&desc).unwrap();
+        let n_tris = inner.triangle_count();
+        let targets = [Some(IrradianceTarget { width: 4, height: 4, texel_area: vec![0.5; n_tris] }), None];
+        let full = LightTraceSettings { paths: 100_000, batch_size: 9_000, seed: 7, ..Default::default() };
+        let want = trace(&scene, &targets, &full, &|| {});
+        let wm = want.maps[0].as_ref().unwrap();
+        assert!(
+            wm.direct.iter().flatten().any(|&x| x > 0.0) && wm.indirect.iter().flatten().any(|&x| x > 0.0)
+        );
+        for threads in [1, 2] {
+            let s = LightTraceSettings { direct: false, ..full };
+            let got = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| trace(&scene, &targets, &s, &|| {}));
+            let m = got.maps[0].as_ref().unwrap();
+            assert!(m.direct.is_empty());
+            assert_eq!((m.width, m.height), (4, 4));
+            assert_eq!(m.indirect, wm.indirect, "{threads} threads");
+        }
     }
 }
