@@ -215,10 +215,61 @@ pub struct DelightResult {
     pub converged: bool,
     /// Warnings (unseen objects, masked pixels...).
     pub warnings: Vec<String>,
-    /// Seconds per stage: (name, seconds).
+    /// Wall seconds per stage: (name, seconds).
     pub timings: Vec<(String, f64)>,
+    /// CPU seconds (user + system of the whole process, all threads) per stage, same names as
+    /// `timings` (NaN where `/proc/self/stat` is not available).
+    pub cpu_timings: Vec<(String, f64)>,
     /// Light paths traced in total.
     pub light_paths: u64,
+}
+
+/// CPU time (user + system, all threads) of this process in seconds, from `/proc/self/stat`
+/// (clock ticks of 1/100 s); NaN where that file is not available. On a shared machine the CPU
+/// time of a stage is far steadier than its wall time.
+pub fn cpu_seconds() -> f64 {
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            // fields after the command name (in parentheses): utime is field 14, stime 15
+            let rest: Vec<&str> = s.rsplit_once(')')?.1.split_whitespace().collect();
+            let ut: f64 = rest.get(11)?.parse().ok()?;
+            let st: f64 = rest.get(12)?.parse().ok()?;
+            Some((ut + st) / 100.0)
+        })
+        .unwrap_or(f64::NAN)
+}
+
+/// Wall and CPU clock of a stage ([`cpu_seconds`]).
+#[derive(Clone, Copy, Debug)]
+pub struct StageClock {
+    wall: std::time::Instant,
+    cpu: f64,
+}
+
+impl StageClock {
+    /// Starts the clock.
+    pub fn start() -> Self {
+        StageClock { wall: std::time::Instant::now(), cpu: cpu_seconds() }
+    }
+    /// (wall seconds, CPU seconds) since [`StageClock::start`].
+    pub fn elapsed(&self) -> (f64, f64) {
+        (self.wall.elapsed().as_secs_f64(), cpu_seconds() - self.cpu)
+    }
+}
+
+/// Stage timings being recorded: wall and CPU seconds per named stage.
+#[derive(Default)]
+struct Timings {
+    wall: Vec<(String, f64)>,
+    cpu: Vec<(String, f64)>,
+}
+
+impl Timings {
+    fn push(&mut self, name: &str, (wall, cpu): (f64, f64)) {
+        self.wall.push((name.into(), wall));
+        self.cpu.push((name.into(), cpu));
+    }
 }
 
 fn to_image(v: &[[f32; 3]], w: usize, h: usize) -> Image {
@@ -575,8 +626,8 @@ pub fn delight(
     s: &DelightSettings,
     log: &(dyn Fn(&str) + Sync),
 ) -> Result<DelightResult> {
-    let t_all = std::time::Instant::now();
-    let mut timings = Vec::new();
+    let t_all = StageClock::start();
+    let mut timings = Timings::default();
     let mut warnings = Vec::new();
     let scene = Scene::build(desc)?;
     if scene.light_sampler().is_none() {
@@ -618,7 +669,7 @@ pub fn delight(
     let cams: Vec<(Vec3, f32, usize)> =
         views.iter().map(|v| (v.camera.origin(), v.camera.tan_half_x, v.camera.width)).collect();
     // 1. atlases
-    let t0 = std::time::Instant::now();
+    let t0 = StageClock::start();
     let mut objects = Vec::new();
     let mut skipped = Vec::new();
     for &k in &selected {
@@ -668,13 +719,13 @@ pub fn delight(
     if objects.is_empty() {
         return Err(Error::invalid("objects", "no object could be unwrapped"));
     }
-    timings.push(("unwrap".into(), t0.elapsed().as_secs_f64()));
+    timings.push("unwrap", t0.elapsed());
     // 4. direct irradiance (first: it shapes the prior of the super-resolved luminance maps)
-    let t0 = std::time::Instant::now();
+    let t0 = StageClock::start();
     for (j, o) in objects.iter_mut().enumerate() {
         o.ed = direct_irradiance(&scene, &o.atlas, s.direct_samples, s.seed, 0xED00 + j as u64);
     }
-    timings.push(("direct".into(), t0.elapsed().as_secs_f64()));
+    timings.push("direct", t0.elapsed());
     // 5. initial Kd
     let mut avg = [0f64; 3];
     let mut aw = 0f64;
@@ -692,7 +743,7 @@ pub fn delight(
     }
     let avg = avg.map(|v| (v / aw.max(1e-30)) as f32);
     // 2–3. luminance maps
-    let t0 = std::time::Instant::now();
+    let t0 = StageClock::start();
     let pure: Vec<PureBuffer> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
     let (slo, shi) = scene.bounds();
     let diag = (shi - slo).length();
@@ -747,7 +798,7 @@ pub fn delight(
             if o.near_emitter { ", near an emitter (median)" } else { "" }
         ));
     }
-    timings.push(("luminance".into(), t0.elapsed().as_secs_f64()));
+    timings.push("luminance", t0.elapsed());
     // 5. initial Kd
     for o in &mut objects {
         for i in 0..o.ed.len() {
@@ -773,8 +824,11 @@ pub fn delight(
     let mut iterations = Vec::new();
     let mut converged = false;
     let mut light_paths = 0;
+    let (mut lt_wall, mut lt_cpu, mut post_wall, mut post_cpu) = (0f64, 0f64, 0f64, 0f64);
+    let t_it = StageClock::start();
     for k in 1..=s.iterations {
         let t0 = std::time::Instant::now();
+        let c0 = StageClock::start();
         let rdesc = recovered_desc(desc, &objects);
         let rscene = Scene::build(&rdesc)?;
         let lt = LightTraceSettings {
@@ -785,6 +839,10 @@ pub fn delight(
             seed: s.seed.wrapping_add(k as u64),
         };
         let out = light_tracer::trace(&rscene, &targets, &lt, &|| {});
+        let (w, c) = c0.elapsed();
+        lt_wall += w;
+        lt_cpu += c;
+        let c0 = StageClock::start();
         light_paths += out.paths;
         if out.nonfinite > 0 {
             warnings
@@ -904,10 +962,13 @@ pub fn delight(
         }
         // multi-view super-resolution once the first pass gives the indirect irradiance: its
         // prior acts on B / (Ed + Ei), i.e. on the albedo rather than on the lighting
+        let (w, c) = c0.elapsed();
+        post_wall += w;
+        post_cpu += c;
         if k == 1
             && let Some(sr) = &s.superres
         {
-            let t1 = std::time::Instant::now();
+            let t1 = StageClock::start();
             for o in &mut objects {
                 // the indirect part smoothed further (low-frequency; its Monte-Carlo noise would
                 // otherwise enter the prior's albedo estimate)
@@ -946,8 +1007,9 @@ pub fn delight(
                     ));
                 }
             }
-            timings.push(("superres".into(), t1.elapsed().as_secs_f64()));
+            timings.push("superres", t1.elapsed());
         }
+        let c0 = StageClock::start();
         fill_unseen(&mut objects);
         let st = IterationStats {
             iteration: k,
@@ -967,15 +1029,21 @@ pub fn delight(
         ));
         let done = st.max_rel_error < s.tolerance;
         iterations.push(st);
+        let (w, c) = c0.elapsed();
+        post_wall += w;
+        post_cpu += c;
         if done {
             converged = true;
             break;
         }
     }
     debug_dump(&objects, "final");
-    timings.push(("iterations".into(), iterations.iter().map(|i| i.seconds).sum()));
-    timings.push(("total".into(), t_all.elapsed().as_secs_f64()));
-    Ok(DelightResult { objects, skipped, iterations, converged, warnings, timings, light_paths })
+    timings.push("iterations", t_it.elapsed());
+    timings.push("light_tracing", (lt_wall, lt_cpu));
+    timings.push("iteration_post", (post_wall, post_cpu));
+    timings.push("total", t_all.elapsed());
+    let Timings { wall: timings, cpu: cpu_timings } = timings;
+    Ok(DelightResult { objects, skipped, iterations, converged, warnings, timings, cpu_timings, light_paths })
 }
 
 /// Seen fraction, median filter next to emitters and inpainting of the holes of a new luminance
