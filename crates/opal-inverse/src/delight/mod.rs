@@ -541,7 +541,7 @@ fn texel_direct(scene: &Scene, a: &Atlas, i: usize, side: u32, rng: &mut Rng) ->
             // not exact: a light partly occluded; no closed form; or a light above the horizon
             // that no sample reached (it grazes the horizon: the full count may reach it)
             let grazing = !seen && !hidden && exact.is_some_and(|ex| ex.iter().any(|&v| v > 0.0));
-            mixed |= (seen && hidden) || (exact.is_none() && seen) || grazing;
+            mixed |= (seen && (hidden || exact.is_none())) || grazing;
             for c in 0..3 {
                 e[c] += match exact {
                     Some(ex) if all[c] > 0.0 => ex[c] as f64 * vis[c] / all[c],
