@@ -243,14 +243,24 @@ fn write_outputs(
 ) -> Result<serde_json::Value> {
     let out = &a.output;
     let t0 = StageClock::start();
-    // textures, meshes, error maps
-    let mut objs = Vec::new();
-    for (j, o) in r.objects.iter().enumerate() {
-        let img = o.kd_image();
-        exr(&out.join(format!("albedo/{}.exr", o.id)), &img)?;
-        png(&out.join(format!("albedo/{}.png", o.id)), &img, 1.0)?;
-        util::write_bytes_atomic(&out.join(format!("meshes/{}.obj", o.id)), obj_text(o).as_bytes())?;
-        for it in &r.iterations {
+    // textures, meshes, error maps: one task per object and iteration (PNG/EXR encoding of the
+    // large maps is serial per file)
+    use rayon::prelude::*;
+    r.objects
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(j, o)| (0..r.iterations.len()).map(move |k| (j, o, Some(k))).chain([(j, o, None)]))
+        .try_for_each(|(j, o, k)| -> Result<()> {
+            let Some(k) = k else {
+                let img = o.kd_image();
+                exr(&out.join(format!("albedo/{}.exr", o.id)), &img)?;
+                png(&out.join(format!("albedo/{}.png", o.id)), &img, 1.0)?;
+                return util::write_bytes_atomic(
+                    &out.join(format!("meshes/{}.obj", o.id)),
+                    obj_text(o).as_bytes(),
+                );
+            };
+            let it = &r.iterations[k];
             let e = &it.error_maps[j];
             let abs: Vec<f32> = e.iter().map(|v| v.abs()).collect();
             util::write_atomic(&out.join(format!("errors/iter_{:02}_{}.png", it.iteration, o.id)), |f| {
@@ -267,7 +277,10 @@ fn write_outputs(
                 *p = opal::spectrum::Spectrum::splat(*v);
             }
             exr(&out.join(format!("errors/iter_{:02}_{}.exr", it.iteration, o.id)), &ei)?;
-        }
+            Ok(())
+        })?;
+    let mut objs = Vec::new();
+    for o in &r.objects {
         let m = o.mean_kd_observed();
         objs.push(json!({
             "id": o.id,

@@ -320,7 +320,7 @@ fn bbox(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
 }
 
 /// Luminance map of one object (step 2): values, observed mask.
-pub(crate) fn luminance_map(
+pub fn luminance_map(
     scene: &Scene,
     shape: u32,
     a: &Atlas,
@@ -610,8 +610,9 @@ fn triangle_irradiance(t: &opal::light::TriangleLight, p: Vec3, n: Vec3) -> Opti
     Some(std::array::from_fn(|c| t.radiance[c] * f))
 }
 
-/// Box filter within charts (separable, normalised over covered texels of the same chart).
-fn smooth_in_charts(v: &[[f32; 3]], a: &Atlas, r: usize) -> Vec<[f32; 3]> {
+/// Box filter of radius `r` texels within charts (separable, normalised over covered texels of
+/// the same chart).
+pub fn smooth_in_charts(v: &[[f32; 3]], a: &Atlas, r: usize) -> Vec<[f32; 3]> {
     if r == 0 {
         return v.to_vec();
     }
@@ -1051,44 +1052,55 @@ pub fn delight(
             && let Some(sr) = &s.superres
         {
             let t1 = StageClock::start();
-            for o in &mut objects {
-                // the indirect part smoothed further (low-frequency; its Monte-Carlo noise would
-                // otherwise enter the prior's albedo estimate)
-                let ei = smooth_in_charts(&o.ei, &o.atlas, (o.atlas.width / 16).max(1));
-                let mut shading: Vec<f32> =
-                    o.ed.iter()
-                        .zip(&ei)
-                        .map(|(d, i)| luminance(std::array::from_fn(|c| d[c] + i[c])))
-                        .collect();
-                if let Ok(p) = std::env::var("OPAL_SR_SHADING") {
-                    // error analysis: a given irradiance map (e.g. the true one) instead
-                    if let Ok(img) = opal::image::read::read_image(std::path::Path::new(&p))
-                        && img.data.len() == shading.len()
-                    {
-                        shading = img.data.iter().map(|v| luminance(v.0)).collect();
+            // objects in parallel (each solve is parallel inside too, but its many short
+            // parallel loops leave a core idle on small objects); the result of each object does
+            // not depend on the thread count
+            let msgs: Vec<Option<String>> = objects
+                .par_iter_mut()
+                .map(|o| {
+                    let to = std::time::Instant::now();
+                    // the indirect part smoothed further (low-frequency; its Monte-Carlo noise would
+                    // otherwise enter the prior's albedo estimate)
+                    let ei = smooth_in_charts(&o.ei, &o.atlas, (o.atlas.width / 16).max(1));
+                    let mut shading: Vec<f32> =
+                        o.ed.iter()
+                            .zip(&ei)
+                            .map(|(d, i)| luminance(std::array::from_fn(|c| d[c] + i[c])))
+                            .collect();
+                    if let Ok(p) = std::env::var("OPAL_SR_SHADING") {
+                        // error analysis: a given irradiance map (e.g. the true one) instead
+                        if let Ok(img) = opal::image::read::read_image(std::path::Path::new(&p))
+                            && img.data.len() == shading.len()
+                        {
+                            shading = img.data.iter().map(|v| luminance(v.0)).collect();
+                        }
                     }
-                }
-                if let Some((ls, os)) = superres::superres_luminance(
-                    &scene,
-                    o.shape as u32,
-                    &o.atlas,
-                    views,
-                    &pure,
-                    (&o.l, &o.observed),
-                    Some(&shading),
-                    sr,
-                ) {
-                    o.l = ls;
-                    o.observed = os;
-                    finish_luminance(o);
-                    o.clamped = update_kd(o);
-                    log(&format!(
-                        "super-resolved luminance {}: {:.1} % of texels seen",
-                        o.id,
-                        100.0 * o.seen_fraction
-                    ));
-                }
-            }
+                    if let Some((ls, os)) = superres::superres_luminance(
+                        &scene,
+                        o.shape as u32,
+                        &o.atlas,
+                        views,
+                        &pure,
+                        (&o.l, &o.observed),
+                        Some(&shading),
+                        sr,
+                    ) {
+                        o.l = ls;
+                        o.observed = os;
+                        finish_luminance(o);
+                        o.clamped = update_kd(o);
+                        Some(format!(
+                            "super-resolved luminance {}: {:.1} % of texels seen ({:.1} s)",
+                            o.id,
+                            100.0 * o.seen_fraction,
+                            to.elapsed().as_secs_f64()
+                        ))
+                    } else {
+                        None
+                    }
+                })
+                .collect();
+            msgs.iter().flatten().for_each(|m| log(m));
             timings.push("superres", t1.elapsed());
         }
         let c0 = StageClock::start();
