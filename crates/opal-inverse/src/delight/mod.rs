@@ -935,113 +935,122 @@ pub fn delight(
         let mut error_maps = Vec::new();
         let mut direct_ratio = Vec::new();
         let (mut gmax, mut gsum, mut gcount) = (0f64, 0f64, 0usize);
-        for o in &mut objects {
-            let m = out.maps[o.shape].as_ref().expect("target");
-            let r = s.smooth.unwrap_or((o.atlas.width / 64).max(1));
-            let cov = &o.atlas.coverage;
-            let ei_raw: Vec<[f32; 3]> = m
-                .indirect
-                .iter()
-                .zip(cov)
-                .map(|(e, &c)| e.map(|x| (x / c.max(1.0 / 16.0) as f64) as f32))
-                .collect();
-            let ei_r = smooth_in_charts(&ei_raw, &o.atlas, r);
-            // direct consistency (means over covered texels)
-            let (mut a, mut b) = (0f64, 0f64);
-            for i in 0..o.ed.len() {
-                if o.atlas.texel_tri[i] != NO_TRI {
-                    a += luminance(m.direct[i].map(|x| x as f32)) as f64 / cov[i].max(1.0 / 16.0) as f64;
-                    b += luminance(o.ed[i]) as f64;
+        // objects in parallel (smoothing, error statistics, update and inpainting of each)
+        let post: Vec<_> = objects
+            .par_iter_mut()
+            .map(|o| {
+                let m = out.maps[o.shape].as_ref().expect("target");
+                let r = s.smooth.unwrap_or((o.atlas.width / 64).max(1));
+                let cov = &o.atlas.coverage;
+                let ei_raw: Vec<[f32; 3]> = m
+                    .indirect
+                    .iter()
+                    .zip(cov)
+                    .map(|(e, &c)| e.map(|x| (x / c.max(1.0 / 16.0) as f64) as f32))
+                    .collect();
+                let ei_r = smooth_in_charts(&ei_raw, &o.atlas, r);
+                // direct consistency (means over covered texels)
+                let (mut a, mut b) = (0f64, 0f64);
+                for i in 0..o.ed.len() {
+                    if o.atlas.texel_tri[i] != NO_TRI {
+                        a += luminance(m.direct[i].map(|x| x as f32)) as f64 / cov[i].max(1.0 / 16.0) as f64;
+                        b += luminance(o.ed[i]) as f64;
+                    }
                 }
-            }
-            direct_ratio.push(if b > 0.0 { a / b } else { f64::NAN });
-            // error map
-            let n = o.l.len();
-            let mut rel = vec![f32::NAN; n];
-            let mut vals = Vec::new();
-            let mut e_abs = vec![[0f32; 3]; n];
-            for i in 0..n {
-                if !o.observed[i] {
-                    continue;
-                }
-                let lr: [f32; 3] = std::array::from_fn(|c| o.kd[i][c] / PI * (o.ed[i][c] + ei_r[i][c]));
-                e_abs[i] = std::array::from_fn(|c| o.l[i][c] - lr[c]);
-                let y = luminance(o.l[i]);
-                if y > 0.0 {
-                    rel[i] = (y - luminance(lr)) / y;
-                    vals.push(rel[i] as f64);
-                }
-            }
-            let (mut omax, mut osum, mut ocount, mut outl) = (0f64, 0f64, 0usize, 0usize);
-            if !vals.is_empty() {
-                let (q1, q3) = quartiles(&mut vals);
-                let iqr = q3 - q1;
-                let (lo, hi) = (q1 - 1.5 * iqr, q3 + 1.5 * iqr);
+                let ratio = if b > 0.0 { a / b } else { f64::NAN };
+                // error map
+                let n = o.l.len();
+                let mut rel = vec![f32::NAN; n];
+                let mut vals = Vec::new();
+                let mut e_abs = vec![[0f32; 3]; n];
                 for i in 0..n {
-                    let r = rel[i] as f64;
-                    if r.is_nan() {
+                    if !o.observed[i] {
                         continue;
                     }
-                    if r < lo || r > hi {
-                        outl += 1;
-                        e_abs[i] = [0.0; 3];
-                        continue;
+                    let lr: [f32; 3] = std::array::from_fn(|c| o.kd[i][c] / PI * (o.ed[i][c] + ei_r[i][c]));
+                    e_abs[i] = std::array::from_fn(|c| o.l[i][c] - lr[c]);
+                    let y = luminance(o.l[i]);
+                    if y > 0.0 {
+                        rel[i] = (y - luminance(lr)) / y;
+                        vals.push(rel[i] as f64);
                     }
-                    omax = omax.max(r.abs());
-                    osum += r.abs();
-                    ocount += 1;
                 }
-            }
+                let (mut omax, mut osum, mut ocount, mut outl) = (0f64, 0f64, 0usize, 0usize);
+                if !vals.is_empty() {
+                    let (q1, q3) = quartiles(&mut vals);
+                    let iqr = q3 - q1;
+                    let (lo, hi) = (q1 - 1.5 * iqr, q3 + 1.5 * iqr);
+                    for i in 0..n {
+                        let r = rel[i] as f64;
+                        if r.is_nan() {
+                            continue;
+                        }
+                        if r < lo || r > hi {
+                            outl += 1;
+                            e_abs[i] = [0.0; 3];
+                            continue;
+                        }
+                        omax = omax.max(r.abs());
+                        osum += r.abs();
+                        ocount += 1;
+                    }
+                }
+                // update Ei
+                match s.update {
+                    UpdateRule::FixedPoint => {
+                        // under-relaxed fixed point: the plain map oscillates (period 2) in a
+                        // closed, bright room; averaging also halves the Monte-Carlo variance
+                        for i in 0..n {
+                            for c in 0..3 {
+                                o.ei[i][c] =
+                                    if k == 1 { ei_r[i][c] } else { 0.5 * (o.ei[i][c] + ei_r[i][c]) };
+                            }
+                        }
+                    }
+                    UpdateRule::Paper { alpha0 } => {
+                        let alpha = alpha0 / (1.0 + k as f32);
+                        for i in 0..n {
+                            for c in 0..3 {
+                                o.ei[i][c] = (o.ei[i][c] + alpha * o.kd[i][c] / PI * e_abs[i][c]).max(0.0);
+                            }
+                        }
+                    }
+                }
+                o.clamped = update_kd(o);
+                if std::env::var("OPAL_DELIGHT_DEBUG").is_ok() {
+                    let mut acc = [[0f64; 3]; 4];
+                    let mut cnt = 0f64;
+                    for i in 0..n {
+                        if o.observed[i] {
+                            cnt += 1.0;
+                            for c in 0..3 {
+                                acc[0][c] += o.l[i][c] as f64;
+                                acc[1][c] += o.ed[i][c] as f64;
+                                acc[2][c] += o.ei[i][c] as f64;
+                                acc[3][c] += o.kd[i][c] as f64;
+                            }
+                        }
+                    }
+                    log(&format!(
+                        "  {}: L {:.4?} Ed {:.4?} Ei {:.4?} Kd {:.4?} clamped {}",
+                        o.id,
+                        acc[0].map(|v| v / cnt),
+                        acc[1].map(|v| v / cnt),
+                        acc[2].map(|v| v / cnt),
+                        acc[3].map(|v| v / cnt),
+                        o.clamped
+                    ));
+                }
+                (omax, osum, ocount, outl, rel, ratio)
+            })
+            .collect();
+        for (omax, osum, ocount, outl, rel, ratio) in post {
             gmax = gmax.max(omax);
             gsum += osum;
             gcount += ocount;
             per_object.push((omax, osum / ocount.max(1) as f64, outl));
             error_maps.push(rel);
-            // update Ei
-            match s.update {
-                UpdateRule::FixedPoint => {
-                    // under-relaxed fixed point: the plain map oscillates (period 2) in a
-                    // closed, bright room; averaging also halves the Monte-Carlo variance
-                    for i in 0..n {
-                        for c in 0..3 {
-                            o.ei[i][c] = if k == 1 { ei_r[i][c] } else { 0.5 * (o.ei[i][c] + ei_r[i][c]) };
-                        }
-                    }
-                }
-                UpdateRule::Paper { alpha0 } => {
-                    let alpha = alpha0 / (1.0 + k as f32);
-                    for i in 0..n {
-                        for c in 0..3 {
-                            o.ei[i][c] = (o.ei[i][c] + alpha * o.kd[i][c] / PI * e_abs[i][c]).max(0.0);
-                        }
-                    }
-                }
-            }
-            o.clamped = update_kd(o);
-            if std::env::var("OPAL_DELIGHT_DEBUG").is_ok() {
-                let mut acc = [[0f64; 3]; 4];
-                let mut cnt = 0f64;
-                for i in 0..n {
-                    if o.observed[i] {
-                        cnt += 1.0;
-                        for c in 0..3 {
-                            acc[0][c] += o.l[i][c] as f64;
-                            acc[1][c] += o.ed[i][c] as f64;
-                            acc[2][c] += o.ei[i][c] as f64;
-                            acc[3][c] += o.kd[i][c] as f64;
-                        }
-                    }
-                }
-                log(&format!(
-                    "  {}: L {:.4?} Ed {:.4?} Ei {:.4?} Kd {:.4?} clamped {}",
-                    o.id,
-                    acc[0].map(|v| v / cnt),
-                    acc[1].map(|v| v / cnt),
-                    acc[2].map(|v| v / cnt),
-                    acc[3].map(|v| v / cnt),
-                    o.clamped
-                ));
-            }
+            direct_ratio.push(ratio);
         }
         // multi-view super-resolution once the first pass gives the indirect irradiance: its
         // prior acts on B / (Ed + Ei), i.e. on the albedo rather than on the lighting
