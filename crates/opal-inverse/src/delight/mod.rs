@@ -565,7 +565,7 @@ fn texel_direct(scene: &Scene, a: &Atlas, i: usize, side: u32, rng: &mut Rng) ->
 
 /// Scenes with at most this many emitting triangles / point lights sample every light at every
 /// texel (with the closed-form control variate); larger ones choose lights by power.
-const MAX_LIGHTS_PER_TEXEL: usize = 16;
+pub const MAX_LIGHTS_PER_TEXEL: usize = 16;
 
 /// Unoccluded irradiance (cosine-weighted about `n`) at `p` from a uniformly emitting,
 /// one-sided triangle light, in closed form (Lambert's polygon formula on the triangle clipped
