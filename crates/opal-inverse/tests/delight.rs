@@ -130,7 +130,8 @@ fn report(r: &DelightResult, desc: &SceneDesc) -> f64 {
             it.seconds
         );
     }
-    println!("timings {:?}", r.timings);
+    println!("timings (wall s) {:?}", r.timings);
+    println!("timings (CPU s) {:?}", r.cpu_timings);
     worst
 }
 

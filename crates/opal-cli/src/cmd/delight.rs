@@ -11,8 +11,8 @@ use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
-    DelightResult, DelightSettings, ObjectResult, UpdateRule, delight, object_masks, recovered_desc,
-    region_stats,
+    DelightResult, DelightSettings, ObjectResult, StageClock, UpdateRule, delight, object_masks,
+    recovered_desc, region_stats,
 };
 use serde_json::json;
 use std::fmt::Write as _;
@@ -242,15 +242,25 @@ fn write_outputs(
     log: &(dyn Fn(&str) + Sync),
 ) -> Result<serde_json::Value> {
     let out = &a.output;
-    let t0 = std::time::Instant::now();
-    // textures, meshes, error maps
-    let mut objs = Vec::new();
-    for (j, o) in r.objects.iter().enumerate() {
-        let img = o.kd_image();
-        exr(&out.join(format!("albedo/{}.exr", o.id)), &img)?;
-        png(&out.join(format!("albedo/{}.png", o.id)), &img, 1.0)?;
-        util::write_bytes_atomic(&out.join(format!("meshes/{}.obj", o.id)), obj_text(o).as_bytes())?;
-        for it in &r.iterations {
+    let t0 = StageClock::start();
+    // textures, meshes, error maps: one task per object and iteration (PNG/EXR encoding of the
+    // large maps is serial per file)
+    use rayon::prelude::*;
+    r.objects
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(j, o)| (0..r.iterations.len()).map(move |k| (j, o, Some(k))).chain([(j, o, None)]))
+        .try_for_each(|(j, o, k)| -> Result<()> {
+            let Some(k) = k else {
+                let img = o.kd_image();
+                exr(&out.join(format!("albedo/{}.exr", o.id)), &img)?;
+                png(&out.join(format!("albedo/{}.png", o.id)), &img, 1.0)?;
+                return util::write_bytes_atomic(
+                    &out.join(format!("meshes/{}.obj", o.id)),
+                    obj_text(o).as_bytes(),
+                );
+            };
+            let it = &r.iterations[k];
             let e = &it.error_maps[j];
             let abs: Vec<f32> = e.iter().map(|v| v.abs()).collect();
             util::write_atomic(&out.join(format!("errors/iter_{:02}_{}.png", it.iteration, o.id)), |f| {
@@ -267,7 +277,10 @@ fn write_outputs(
                 *p = opal::spectrum::Spectrum::splat(*v);
             }
             exr(&out.join(format!("errors/iter_{:02}_{}.exr", it.iteration, o.id)), &ei)?;
-        }
+            Ok(())
+        })?;
+    let mut objs = Vec::new();
+    for o in &r.objects {
         let m = o.mean_kd_observed();
         objs.push(json!({
             "id": o.id,
@@ -323,7 +336,9 @@ fn write_outputs(
         plot.save(&tmp, (640, 420))?;
         std::fs::rename(&tmp, out.join("convergence.png"))?;
     }
+    let t_out = t0.elapsed();
     // re-renders and region statistics
+    let t_rr = StageClock::start();
     let mut regions = Vec::new();
     let mut max_region_err = 0f64;
     let mut rerenders = Vec::new();
@@ -398,9 +413,16 @@ fn write_outputs(
             })
         })
         .collect();
+    let t_rr = t_rr.elapsed();
     let mut timings: serde_json::Map<String, serde_json::Value> =
         r.timings.iter().map(|(k, v)| (k.clone(), json!(v))).collect();
-    timings.insert("outputs_and_rerenders".into(), json!(t0.elapsed().as_secs_f64()));
+    let mut cpu: serde_json::Map<String, serde_json::Value> =
+        r.cpu_timings.iter().map(|(k, v)| (k.clone(), json!(v))).collect();
+    let t_all = t0.elapsed();
+    for (name, (w, c)) in [("outputs", t_out), ("rerenders", t_rr), ("outputs_and_rerenders", t_all)] {
+        timings.insert(name.into(), json!(w));
+        cpu.insert(name.into(), json!(c));
+    }
     let report = json!({
         "scene": a.scene, "views": a.views, "n_views": views.len(),
         "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance},
@@ -413,7 +435,8 @@ fn write_outputs(
         "max_region_rel_error_luminance": max_region_err,
         "rerenders": rerenders,
         "light_paths_total": r.light_paths,
-        "timings_seconds": timings,
+        "timings_seconds": &timings,
+        "cpu_seconds": &cpu,
         "outputs": {"scene": "scene.xml", "convergence_plot": "convergence.png", "report_html": "report.html"},
     });
     util::write_bytes_atomic(&out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
@@ -423,6 +446,13 @@ fn write_outputs(
         f(a).total_cmp(&f(b))
     });
     let noise = worst.and_then(|r| r["rerender_rel_stderr_luminance"].as_f64()).unwrap_or(0.0);
+    let stages: Vec<String> = timings
+        .iter()
+        .map(|(k, w)| {
+            format!("{k} {:.1}/{:.1}", w.as_f64().unwrap_or(f64::NAN), cpu[k].as_f64().unwrap_or(f64::NAN))
+        })
+        .collect();
+    log(&format!("stages (wall/CPU s): {}", stages.join(", ")));
     log(&format!(
         "delight: outputs in {} (max region error {:.2} %, re-render noise of that region ±{:.2} %)",
         out.display(),

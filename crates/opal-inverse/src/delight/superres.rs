@@ -76,8 +76,12 @@ pub struct SrSettings {
     pub exponent: f32,
     /// IRLS reweightings.
     pub irls: usize,
-    /// Conjugate-gradient iterations per reweighting.
+    /// Conjugate-gradient iterations per reweighting (at most).
     pub cg_iters: usize,
+    /// Stop the conjugate gradients of a reweighting early once the preconditioned residual
+    /// norm `sqrt(rᵀM⁻¹r)` of every channel has fallen by this factor from its start (0 = always
+    /// run `cg_iters`).
+    pub cg_tolerance: f32,
     /// Minimum total pixel weight for a texel to count as observed.
     pub min_weight: f32,
 }
@@ -91,6 +95,7 @@ impl Default for SrSettings {
             exponent: 0.5,
             irls: 6,
             cg_iters: 60,
+            cg_tolerance: 0.0,
             min_weight: 0.25,
         }
     }
@@ -560,7 +565,16 @@ pub fn superres_luminance(
     let mut ax = vec![[0f32; 3]; amat.rows()];
     let mut wts = vec![0f32; edges.len()];
     let mut diag = vec![0f32; m];
-    for _ in 0..s.irls.max(1) {
+    let trace = std::env::var("OPAL_SR_TRACE").is_ok();
+    if trace {
+        eprintln!(
+            "superres shape {shape}: {} rows, {m} unknowns, {} nonzeros, {} edges",
+            amat.rows(),
+            amat.val.len(),
+            edges.len()
+        );
+    }
+    for it in 0..s.irls.max(1) {
         wts.par_iter_mut().zip(edges.par_iter()).with_min_len(1024).for_each(|(w, e)| {
             let (p, q) = (x[e.0 as usize], x[e.1 as usize]);
             let g = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
@@ -604,8 +618,22 @@ pub fn superres_luminance(
         let mut z: Vec<[f32; 3]> = (0..m).map(|j| r[j].map(|v| v / diag[j])).collect();
         let mut p = z.clone();
         let mut rz = dot(&r, &z);
+        let rz0 = rz;
         let mut mp = vec![[0f32; 3]; m];
-        for _ in 0..s.cg_iters {
+        let tol2 = (s.cg_tolerance as f64).powi(2);
+        for cg in 0..s.cg_iters {
+            if trace && cg % 10 == 0 {
+                eprintln!(
+                    "  irls {it} cg {cg}: rz/rz0 {:.3e}",
+                    rz.iter().sum::<f64>() / rz0.iter().sum::<f64>()
+                );
+            }
+            if (0..3).all(|c| rz[c] <= tol2 * rz0[c]) {
+                if trace {
+                    eprintln!("  irls {it}: converged after {cg} CG steps");
+                }
+                break;
+            }
             apply(&p, &mut ax, &mut mp);
             let pmp = dot(&p, &mp);
             let alpha: [f32; 3] =
