@@ -13,21 +13,8 @@
 use opal::integrator::light_tracer::{self, IrradianceTarget, LightTraceSettings};
 use opal::math::Vec3;
 use opal::scene::{Scene, load_mitsuba_xml};
-use opal_inverse::delight::atlas;
+use opal_inverse::delight::{StageClock, atlas};
 use std::path::PathBuf;
-
-fn cpu_seconds() -> f64 {
-    // utime + stime of this process from /proc (Linux); NaN elsewhere
-    std::fs::read_to_string("/proc/self/stat")
-        .ok()
-        .and_then(|s| {
-            let rest = s.rsplit_once(')')?.1.split_whitespace().collect::<Vec<_>>().clone();
-            let ut: f64 = rest.get(11)?.parse().ok()?;
-            let st: f64 = rest.get(12)?.parse().ok()?;
-            Some((ut + st) / 100.0)
-        })
-        .unwrap_or(f64::NAN)
-}
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -64,9 +51,9 @@ fn main() {
     // DIRECT=0: no first-hit deposits (as the de-lighting passes after the first)
     let direct = std::env::var("DIRECT").map_or(true, |d| d != "0");
     let s = LightTraceSettings { paths, seed: 1, batch_size: batch, direct, ..Default::default() };
-    let (c0, t0) = (cpu_seconds(), std::time::Instant::now());
+    let clock = StageClock::start();
     let out = light_tracer::trace(&scene, &targets, &s, &|| {});
-    let (wall, cpu) = (t0.elapsed().as_secs_f64(), cpu_seconds() - c0);
+    let (wall, cpu) = clock.elapsed();
     let total: f64 = out.maps.iter().flatten().map(|m| m.indirect.iter().map(|v| v[1]).sum::<f64>()).sum();
     println!(
         "paths {paths}  texels {texels}  threads {}  wall {wall:.2} s  cpu {cpu:.2} s  {:.3} M paths/s  \

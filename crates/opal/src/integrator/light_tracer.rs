@@ -861,6 +861,16 @@ mod tests {
         assert_eq!(out1.maps[0].as_ref().unwrap().direct, m.direct);
     }
 
+    /// The unit cube of `cube_mesh` with its walls facing inwards (winding flipped, no normals).
+    fn inward_box() -> crate::geometry::TriangleMesh {
+        let mut inner = crate::scene::load::cube_mesh();
+        for t in &mut inner.indices {
+            t.swap(1, 2);
+        }
+        inner.normals.clear();
+        inner
+    }
+
     #[test]
     fn closed_box_indirect_matches_geometric_series() {
         // Inside a closed box whose walls all have albedo ρ, emitting walls of radiance Le: the
@@ -869,13 +879,7 @@ mod tests {
         // indirect part π Le ρ/(1-ρ).
         let rho = 0.5f32;
         let le = 1.0f32;
-        let cube = crate::scene::load::cube_mesh();
-        // cube_mesh faces outwards; flip the winding so the walls face inwards
-        let mut inner = cube.clone();
-        for t in &mut inner.indices {
-            t.swap(1, 2);
-        }
-        inner.normals.clear();
+        let inner = inward_box();
         let desc = SceneDesc {
             shapes: vec![ShapeDesc {
                 id: "box".into(),
@@ -1063,11 +1067,7 @@ mod tests {
         // Every deposit of a closed emitting box into one texel; a unit 2⁴⁰ times too fine makes
         // each deposit saturate: the pass must report it and succeed at a coarser unit, with the
         // result of the normal scale.
-        let mut inner = crate::scene::load::cube_mesh();
-        for t in &mut inner.indices {
-            t.swap(1, 2);
-        }
-        inner.normals.clear();
+        let inner = inward_box();
         let desc = SceneDesc {
             shapes: vec![ShapeDesc {
                 id: "box".into(),
@@ -1135,11 +1135,7 @@ mod tests {
         // Same scene as the furnace-like box test: first hits not deposited, direct map empty,
         // indirect map bitwise that of the full pass (same paths and random numbers), for 1 and 2
         // threads.
-        let mut inner = crate::scene::load::cube_mesh();
-        for t in &mut inner.indices {
-            t.swap(1, 2);
-        }
-        inner.normals.clear();
+        let inner = inward_box();
         let light = {
             let mut m = floor_quad(0.3);
             for p in &mut m.positions {
