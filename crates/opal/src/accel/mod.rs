@@ -5,10 +5,13 @@
 //! * [`Bvh`]: the acceleration structure the engine uses (binned SAH BVH, see [`bvh`]).
 //! * [`TinyAccel`]: every triangle tested eight at a time (SIMD), for scenes of at most
 //!   [`tiny::TINY_MAX`] triangles (see [`tiny`]).
+//! * [`packet::PacketAccel`]: eight rays at once (one per SIMD lane) against a tiny soup, for
+//!   callers with independent rays at hand (the light tracer's wavefront); same hits.
 //! * [`scenes`]: deterministic meshes and soups for tests and benchmarks.
 //! * [`BruteForce`] tests every triangle; it is the reference the BVH is tested against.
 
 pub mod bvh;
+pub mod packet;
 pub mod scenes;
 pub mod tiny;
 pub mod triangle;

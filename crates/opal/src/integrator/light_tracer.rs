@@ -12,9 +12,10 @@
 //! (no direct map: half the accumulator memory; same paths, same indirect map). The path then scatters with the scene's BSDF in
 //! [`TransportMode::Importance`] and Russian roulette from `rr_depth`.
 //!
-//! Determinism: paths are split into fixed batches of `batch_size`; batch `b` draws its numbers
-//! from `Rng::new(seed, 0x4c54, b)`. The result depends on `(seed, batch_size, paths)` only,
-//! never on the thread count.
+//! Determinism: path `i` draws its numbers from its own generator, `Rng::new(seed, 0x4c54, i)`;
+//! paths are handed to the workers in batches of `batch_size`. The result depends on
+//! `(seed, paths)` only, never on the thread count, the batch size or the order in which the
+//! paths are traced.
 //!
 //! **Accumulation** (fixed point). Up to `MAX_WORKERS` (8) workers pull batch indices from a
 //! shared counter and add their deposits into their own integer maps, which live for the whole
@@ -40,20 +41,30 @@
 //! (the arithmetic of `Lambert::sample` and `BsdfSample::weight`, same random numbers as the
 //! generic `Scene::bsdf` path, which other materials take), and their albedo lookup is applied
 //! after the next ray is traced so its cache miss overlaps the traversal; deposits go through a
-//! short per-worker queue that prefetches their texel. Small scenes are traversed by
-//! [`crate::accel::TinyAccel`] (through `Scene::intersect_hit`).
+//! short per-worker queue that prefetches their texel. When every material is Lambertian, eight
+//! paths advance together (`Wavefront`): one step traces the eight rays, runs the per-vertex
+//! bookkeeping lane by lane and scatters the eight vertices with one SIMD kernel, then refills
+//! finished lanes with the next paths — each path is bit for bit the one `trace_path` traces
+//! alone (its own generator, same operations), so only the order of the integer deposits
+//! changes. In scenes of up to `TINY_MAX` triangles the eight rays are traced together, one per
+//! SIMD lane ([`crate::accel::packet::PacketAccel`], same hits as
+//! [`crate::accel::TinyAccel`]); otherwise through `Scene::intersect_hit`.
 //!
 //! Tests (below): a quad under a point light (E = I cos θ / d², analytic) and a quad under a
 //! small area light against a quadrature of ∫ L cos dω; indirect light in a closed furnace-like
 //! box against the path tracer's estimate; thread-count independence; the fast paths and the
 //! fixed-point sums against the generic f64 pass (a bitmap-textured floor, a two-sided wall,
-//! Russian roulette) to 10⁻⁶, identical for 1, 2 and 3 threads; the `i32` cells with spill
+//! Russian roulette) to 10⁻⁶, identical for 1, 2 and 3 threads and for the three engines
+//! (wavefront with ray packets, wavefront with one ray per lane, one path at a time); the `i32` cells with spill
 //! against plain `i64` sums (random deposits up to 2⁴⁰ units); `direct: false` leaves the
 //! indirect map bitwise unchanged.
 
+use crate::accel::Hit;
+use crate::accel::packet::{PacketAccel, RayPacket};
 use crate::bsdf::{Bxdf, TransportMode};
+use crate::geometry::Ray;
 use crate::math::{Frame, INV_PI, Vec2, Vec3};
-use crate::sampling::{Rng, square_to_cosine_hemisphere, square_to_cosine_hemisphere_pdf};
+use crate::sampling::{Rng, RngStream, square_to_cosine_hemisphere, square_to_cosine_hemisphere_pdf};
 use crate::scene::Scene;
 use crate::scene::build::eval_texture;
 use crate::scene::desc::{BsdfDesc, TextureDesc};
@@ -77,7 +88,7 @@ pub struct IrradianceTarget {
 pub struct LightTraceSettings {
     /// Number of light paths.
     pub paths: u64,
-    /// Paths per batch (fixed: part of the result's identity, together with the seed).
+    /// Paths per batch (the unit of work handed to a thread; the result does not depend on it).
     pub batch_size: u64,
     /// Maximum number of surface interactions per path (−1 = unbounded).
     pub max_depth: i32,
@@ -302,7 +313,7 @@ pub fn trace(
     let mut shift = 0;
     loop {
         let fp = FixedPoint::new(scene, targets, s.paths, shift);
-        match trace_fixed(scene, sampler, targets, s, &fp, on_batch) {
+        match trace_fixed(scene, sampler, targets, s, &fp, on_batch, Engine::Auto) {
             Ok(out) => return out,
             // Some shape's deposits summed to ≥ 2⁶³ units: a texel may have overflowed. Trace
             // again with a coarser unit (never seen in practice; the result stays deterministic
@@ -310,6 +321,20 @@ pub fn trace(
             Err(bits) => shift -= bits,
         }
     }
+}
+
+/// How the paths are traced (tests compare the three; results are identical).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Engine {
+    /// The wavefront when every material is Lambertian (rays traced as [`RayPacket`]s in scenes
+    /// of up to `TINY_MAX` triangles), else one path at a time.
+    Auto,
+    /// The wavefront with one `Scene::intersect_hit` per lane.
+    #[cfg_attr(not(test), allow(dead_code))]
+    WavefrontRays,
+    /// One path at a time ([`trace_path`]).
+    #[cfg_attr(not(test), allow(dead_code))]
+    Scalar,
 }
 
 /// One pass at a fixed-point scale; `Err(bits)` when the scale must shrink by `2^bits`.
@@ -320,6 +345,7 @@ fn trace_fixed(
     s: &LightTraceSettings,
     fp: &FixedPoint,
     on_batch: &(dyn Fn() + Sync),
+    engine: Engine,
 ) -> Result<LightTraceOutput, i32> {
     use std::sync::atomic::{AtomicU64, Ordering};
     let batch = s.batch_size.max(1);
@@ -330,6 +356,24 @@ fn trace_fixed(
     let workers = rayon::current_num_threads().clamp(1, MAX_WORKERS).min(n_batches.max(1) as usize);
     let next = AtomicU64::new(0);
     let prims = prims(scene, targets, fp);
+    let stream = RngStream::new(s.seed, RNG_STREAM);
+    // Scenes whose every triangle is Lambertian advance eight paths at a time (same paths,
+    // same numbers, same bits as one at a time: see `Wavefront`).
+    let wavefront = engine != Engine::Scalar && prims.iter().all(|p| matches!(p.mat, Mat::Diffuse { .. }));
+    let kernel = scatter_kernel();
+    // Small scenes: the wavefront's eight rays are traced together, one per SIMD lane.
+    let packet = (wavefront && engine == Engine::Auto && fp.factor.len() <= crate::accel::tiny::TINY_MAX)
+        .then(|| {
+            let tris = scene
+                .shapes
+                .iter()
+                .flat_map(|sh| {
+                    let m = &sh.mesh;
+                    m.indices.iter().map(move |idx| idx.map(|i| m.positions[i as usize]))
+                })
+                .collect();
+            PacketAccel::new(tris)
+        });
     let results: Vec<(Acc, u64)> = (0..workers)
         .into_par_iter()
         .map(|_| {
@@ -340,11 +384,14 @@ fn trace_fixed(
                 if b >= n_batches {
                     break;
                 }
-                let start = b * batch;
-                let end = ((b + 1) * batch).min(s.paths);
-                let mut rng = Rng::new(s.seed, 0x4c54, b);
-                for _ in start..end {
-                    trace_path(scene, sampler, &prims, &mut sink, &mut rng, s, &mut bad);
+                let paths = b * batch..((b + 1) * batch).min(s.paths);
+                let mut ctx = PathCtx { scene, sampler, prims: &prims, sink: &mut sink, s, bad: &mut bad };
+                if wavefront {
+                    Wavefront::run(&mut ctx, &stream, paths, kernel, packet.as_ref());
+                } else {
+                    for i in paths {
+                        trace_path(&mut ctx, stream.rng(i));
+                    }
                 }
                 on_batch();
             }
@@ -409,6 +456,8 @@ enum Mat<'a> {
 struct Prim<'a> {
     /// Unit geometric normal.
     ng: Vec3,
+    /// `ng.normalize_or_zero()`: the normal [`super::offset_ray_origin`] offsets along.
+    ng_off: Vec3,
     /// Corner uvs (zeros without uvs).
     uv: [Vec2; 3],
     /// Corner shading normals, when the mesh has them.
@@ -438,8 +487,10 @@ fn prims<'a>(scene: &'a Scene, targets: &[Option<IrradianceTarget>], fp: &FixedP
         for (j, idx) in m.indices.iter().enumerate() {
             let [i0, i1, i2] = idx.map(|i| i as usize);
             let (p0, p1, p2) = (m.positions[i0], m.positions[i1], m.positions[i2]);
+            let ng = (p1 - p0).cross(p2 - p0).normalize();
             out.push(Prim {
-                ng: (p1 - p0).cross(p2 - p0).normalize(),
+                ng,
+                ng_off: ng.normalize_or_zero(),
                 uv: if m.uvs.is_empty() { [Vec2::ZERO; 3] } else { [m.uvs[i0], m.uvs[i1], m.uvs[i2]] },
                 normals: (!m.normals.is_empty()).then(|| [m.normals[i0], m.normals[i1], m.normals[i2]]),
                 shape: k as u32,
@@ -493,92 +544,148 @@ fn prefetch_texture(tex: &TextureDesc, uv: Vec2) {
     }
 }
 
+/// Random stream of the light paths: path `i` draws from `RngStream::new(seed, RNG_STREAM).rng(i)`.
+const RNG_STREAM: u64 = 0x4c54;
+
+/// What every path of a pass shares.
+struct PathCtx<'a, 'b> {
+    scene: &'a Scene,
+    sampler: &'a crate::light::LightSampler,
+    prims: &'b [Prim<'a>],
+    sink: &'b mut Sink,
+    s: &'b LightTraceSettings,
+    /// Non-finite deposits dropped.
+    bad: &'b mut u64,
+}
+
+/// A path between two vertices: the ray to trace next, the weight β, the roulette's reference
+/// weight and the scattering weight of the last vertex, applied after the ray is traced so that
+/// the texture lookup's cache miss overlaps the traversal.
+struct PathState<'a> {
+    rng: Rng,
+    ray: Ray,
+    beta: Spectrum,
+    /// `max_c β_c` at the light: the roulette survives with `min(max_c β_c / b0, 0.95)`.
+    b0: f32,
+    depth: i32,
+    pending: Option<Weight<'a>>,
+}
+
+/// Starts a path: light chosen by power, emitted ray (offset off area lights), initial weight
+/// `β = Le·cos/(pmf·pdf_pos·pdf_dir)`. `None` when the sample carries nothing.
 #[inline]
-fn trace_path(
+fn start_path<'a>(
     scene: &Scene,
     sampler: &crate::light::LightSampler,
-    prims: &[Prim],
-    sink: &mut Sink,
-    rng: &mut Rng,
-    s: &LightTraceSettings,
-    bad: &mut u64,
-) {
+    mut rng: Rng,
+) -> Option<PathState<'a>> {
     let (li, pmf, _) = sampler.sample(rng.next_f32());
     let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
-    let Some(es) = scene.lights[li].sample_le(u_pos, u_dir) else { return };
+    let es = scene.lights[li].sample_le(u_pos, u_dir)?;
     if pmf <= 0.0 || es.pdf_pos <= 0.0 || es.pdf_dir <= 0.0 {
-        return;
+        return None;
     }
     let cos = if es.n == Vec3::ZERO { 1.0 } else { es.ray.d.dot(es.n).abs() };
-    let mut beta = es.le * (cos / (pmf * es.pdf_pos * es.pdf_dir));
+    let beta = es.le * (cos / (pmf * es.pdf_pos * es.pdf_dir));
     let mut ray = es.ray;
     // emitted rays of area lights start on the surface: offset them
     if es.n != Vec3::ZERO {
         ray = super::spawn_ray(ray.o, es.n, ray.d);
     }
-    let mode = TransportMode::Importance;
-    let mut depth = 0i32;
-    // The texel of a deposit is a random location in maps of up to millions of texels: a cache
-    // and TLB miss. Deposits therefore go through the worker's queue ([`Sink`]), which prefetches
-    // them and adds them [`QUEUE`] deposits later (integer sums: the order of additions does not
-    // matter). Likewise the albedo lookup of a Lambertian vertex (its sampled direction does not depend on the albedo), and with it the Russian
-    // roulette, which consumes its random number after the vertex's direction sample as before:
-    // same random numbers, same result; a path killed by the roulette has traced one ray for
-    // nothing (from `rr_depth` on only).
-    let mut weight: Option<Weight> = None;
+    Some(PathState { rng, ray, beta, b0: beta.max_component(), depth: 0, pending: None })
+}
+
+/// A surface hit ready to scatter (see [`vertex`]).
+struct Vertex<'p, 'a> {
+    pr: &'p Prim<'a>,
+    hit: Hit,
+    /// Interpolated texture coordinates.
+    uv: Vec2,
+    /// `1 − b1 − b2`.
+    b0: f32,
+}
+
+/// Everything of a path step up to the scattering: applies the pending weight of the previous
+/// vertex and the Russian roulette (after the ray `st.ray` was traced, with result `hit`), then
+/// counts the new vertex and deposits it. `None` when the path ends.
+#[inline(always)]
+fn vertex<'p, 'a>(
+    ctx: &mut PathCtx<'a, 'p>,
+    st: &mut PathState<'a>,
+    hit: Option<Hit>,
+) -> Option<Vertex<'p, 'a>> {
+    let s = ctx.s;
+    if let Some(w) = st.pending.take() {
+        let w = w.get();
+        if w.is_black() {
+            return None;
+        }
+        st.beta *= w;
+        if s.rr_depth >= 0 && st.depth >= s.rr_depth {
+            let q = survival(st.beta, st.b0);
+            if st.rng.next_f32() >= q {
+                return None;
+            }
+            st.beta *= 1.0 / q;
+        }
+    }
+    let h = hit?;
+    st.depth += 1;
+    let prims: &'p [Prim<'a>] = ctx.prims;
+    let pr = &prims[h.prim as usize];
+    let b0 = 1.0 - h.b1 - h.b2;
+    let uv = pr.uv[0] * b0 + pr.uv[1] * h.b1 + pr.uv[2] * h.b2;
+    let front = (-st.ray.d).dot(pr.ng) > 0.0;
+    if front && pr.factor > 0.0 && (st.depth > 1 || s.direct) {
+        let (w, hgt) = (pr.width as usize, pr.height as usize);
+        let x = ((uv.x * w as f32) as i64).clamp(0, w as i64 - 1) as usize;
+        let y = ((uv.y * hgt as f32) as i64).clamp(0, hgt as i64 - 1) as usize;
+        let e = st.beta.to_f64();
+        if e.iter().all(|v| v.is_finite()) {
+            let shape = pr.shape as usize;
+            let index = 3 * (y * w + x);
+            let direct = st.depth == 1;
+            // round half away from zero (`as` saturates: an absurd deposit then shows in
+            // the overflow check)
+            let value = e.map(|v| {
+                let q = v * pr.factor;
+                (q + 0.5f64.copysign(q)) as i64
+            });
+            ctx.sink.push(Pending { shape, index, direct, value });
+        } else {
+            *ctx.bad += 1;
+        }
+    }
+    if s.max_depth >= 0 && st.depth >= s.max_depth {
+        return None;
+    }
+    Some(Vertex { pr, hit: h, uv, b0 })
+}
+
+/// Traces one light path (one vertex at a time; any material).
+///
+/// The texel of a deposit is a random location in maps of up to millions of texels: a cache and
+/// TLB miss. Deposits therefore go through the worker's queue ([`Sink`]), which prefetches them
+/// and adds them [`QUEUE`] deposits later (integer sums: the order of additions does not matter).
+/// Likewise the albedo lookup of a Lambertian vertex (its sampled direction does not depend on
+/// the albedo), and with it the Russian roulette, which consumes its random number after the
+/// vertex's direction sample: a path killed by the roulette has traced one ray for nothing
+/// (from `rr_depth` on only).
+#[inline]
+fn trace_path(ctx: &mut PathCtx, rng: Rng) {
+    let Some(mut st) = start_path(ctx.scene, ctx.sampler, rng) else { return };
     loop {
-        let hit = scene.intersect_hit(&ray);
-        if let Some(w) = weight.take() {
-            let w = w.get();
-            if w.is_black() {
-                break;
-            }
-            beta *= w;
-            if s.rr_depth >= 0 && depth >= s.rr_depth {
-                let q = beta_survival(beta, es.le, cos, pmf, es.pdf_pos, es.pdf_dir);
-                if rng.next_f32() >= q {
-                    break;
-                }
-                beta *= 1.0 / q;
-            }
-        }
-        let Some(h) = hit else { break };
-        depth += 1;
-        let pr = &prims[h.prim as usize];
-        let wo = -ray.d;
-        let front = wo.dot(pr.ng) > 0.0;
-        let b0 = 1.0 - h.b1 - h.b2;
-        let uv = pr.uv[0] * b0 + pr.uv[1] * h.b1 + pr.uv[2] * h.b2;
-        if front && pr.factor > 0.0 && (depth > 1 || s.direct) {
-            let (w, hgt) = (pr.width as usize, pr.height as usize);
-            let x = ((uv.x * w as f32) as i64).clamp(0, w as i64 - 1) as usize;
-            let y = ((uv.y * hgt as f32) as i64).clamp(0, hgt as i64 - 1) as usize;
-            let e = beta.to_f64();
-            if e.iter().all(|v| v.is_finite()) {
-                let shape = pr.shape as usize;
-                let index = 3 * (y * w + x);
-                let direct = depth == 1;
-                // round half away from zero (`as` saturates: an absurd deposit then shows in
-                // the overflow check)
-                let value = e.map(|v| {
-                    let q = v * pr.factor;
-                    (q + 0.5f64.copysign(q)) as i64
-                });
-                sink.push(Pending { shape, index, direct, value });
-            } else {
-                *bad += 1;
-            }
-        }
-        if s.max_depth >= 0 && depth >= s.max_depth {
-            break;
-        }
-        let p = ray.at(h.t);
+        let hit = ctx.scene.intersect_hit(&st.ray);
+        let Some(v) = vertex(ctx, &mut st, hit) else { break };
+        let (pr, h) = (v.pr, v.hit);
+        let wo = -st.ray.d;
+        let p = st.ray.at(h.t);
         match pr.mat {
             Mat::Diffuse { tex, two_sided } => {
                 let ns = match pr.normals {
                     None => pr.ng,
                     Some([n0, n1, n2]) => {
-                        let n = n0 * b0 + n1 * h.b1 + n2 * h.b2;
+                        let n = n0 * v.b0 + n1 * h.b1 + n2 * h.b2;
                         let l = n.length();
                         if l > 0.0 { n / l } else { pr.ng }
                     }
@@ -586,8 +693,8 @@ fn trace_path(
                 let n = if two_sided && wo.dot(pr.ng) < 0.0 { -ns } else { ns };
                 let frame = Frame::from_normal(n);
                 // `Lambert::sample`, in world space
-                let _uc = rng.next_f32(); // drawn for the generic sampler: same streams
-                let u: Vec2 = rng.next_2d();
+                let _uc = st.rng.next_f32(); // drawn for the generic sampler: same streams
+                let u: Vec2 = st.rng.next_2d();
                 if wo.dot(frame.n) <= 0.0 {
                     break;
                 }
@@ -596,19 +703,243 @@ fn trace_path(
                 if pdf <= 0.0 {
                     break;
                 }
-                prefetch_texture(tex, uv);
-                weight = Some(Weight::Lambert { tex, uv, ratio: wi.z.abs() / pdf });
-                ray = super::spawn_ray(p, pr.ng, frame.to_world(wi));
+                prefetch_texture(tex, v.uv);
+                st.pending = Some(Weight::Lambert { tex, uv: v.uv, ratio: wi.z.abs() / pdf });
+                st.ray = super::spawn_ray(p, pr.ng, frame.to_world(wi));
             }
             Mat::Generic => {
-                let si = scene.interaction(&ray, &h);
-                let (frame, bsdf) = scene.bsdf(&si, wo);
+                let si = ctx.scene.interaction(&st.ray, &h);
+                let (frame, bsdf) = ctx.scene.bsdf(&si, wo);
                 let wo_l = frame.to_local(wo);
-                let uc = rng.next_f32();
-                let u: Vec2 = rng.next_2d();
-                let Some(bs) = bsdf.sample(wo_l, uc, u, mode) else { break };
-                weight = Some(Weight::Known(bs.weight()));
-                ray = super::spawn_ray(si.p, si.ng, frame.to_world(bs.wi));
+                let uc = st.rng.next_f32();
+                let u: Vec2 = st.rng.next_2d();
+                let Some(bs) = bsdf.sample(wo_l, uc, u, TransportMode::Importance) else { break };
+                st.pending = Some(Weight::Known(bs.weight()));
+                st.ray = super::spawn_ray(si.p, si.ng, frame.to_world(bs.wi));
+            }
+        }
+    }
+}
+
+/// Paths advanced together by [`Wavefront`] (one per SIMD lane).
+const W: usize = 8;
+
+/// Inputs of the Lambertian scattering of [`W`] vertices, one per lane (structure of arrays).
+#[derive(Clone, Copy, Default)]
+struct ScatterIn {
+    /// Ray origin, direction and hit distance (the vertex is `o + d·t`).
+    o: [[f32; W]; 3],
+    d: [[f32; W]; 3],
+    t: [f32; W],
+    /// Unit geometric normal and its re-normalised copy for the ray offset.
+    ng: [[f32; W]; 3],
+    ng_off: [[f32; W]; 3],
+    /// Corner shading normals (`has_n` = the mesh has normals), barycentrics.
+    n: [[[f32; W]; 3]; 3],
+    has_n: [u32; W],
+    two_sided: [u32; W],
+    b: [[f32; W]; 3],
+    /// The direction sample.
+    u: [[f32; W]; 2],
+}
+
+/// Outputs: the next ray and the ratio `|cos θi| / pdf`; `valid` = 0 where the path ends.
+#[derive(Clone, Copy, Default)]
+struct ScatterOut {
+    o: [[f32; W]; 3],
+    d: [[f32; W]; 3],
+    ratio: [f32; W],
+    valid: [u32; W],
+}
+
+/// The Lambertian scattering of [`trace_path`] on [`W`] lanes: the same operations in the same
+/// order (`glam`'s component formulas, [`Frame::from_normal`], the concentric map with
+/// `fastmath::sincos_2pi`, [`super::offset_ray_origin`]), with selects for branches, hence the
+/// same bits in every lane (no fused multiply-add is ever formed).
+#[inline(always)]
+fn scatter_lanes(i: &ScatterIn) -> ScatterOut {
+    use crate::fastmath::wide::{self, F, M};
+    type V = [F<W>; 3];
+    let ld = |a: &[[f32; W]; 3]| -> V { [F(a[0]), F(a[1]), F(a[2])] };
+    let dot = |a: V, b: V| (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2];
+    let sel =
+        |m: M<W>, a: V, b: V| -> V { [m.select(a[0], b[0]), m.select(a[1], b[1]), m.select(a[2], b[2])] };
+    let zero = F::<W>::splat(0.0);
+    let (o, d, t) = (ld(&i.o), ld(&i.d), F(i.t));
+    let (ng, ng_off) = (ld(&i.ng), ld(&i.ng_off));
+    let (b0, b1, b2) = (F(i.b[0]), F(i.b[1]), F(i.b[2]));
+    let p: V = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
+    let wo: V = [-d[0], -d[1], -d[2]];
+    // shading normal: interpolated and normalised when the mesh has normals
+    let (n0, n1, n2) = (ld(&i.n[0]), ld(&i.n[1]), ld(&i.n[2]));
+    let ni: V = std::array::from_fn(|c| n0[c] * b0 + n1[c] * b1 + n2[c] * b2);
+    let len = dot(ni, ni).sqrt();
+    let use_ni = M(i.has_n) & len.gt(zero);
+    let ns = sel(use_ni, [ni[0] / len, ni[1] / len, ni[2] / len], ng);
+    let flip = M(i.two_sided) & dot(wo, ng).lt(zero);
+    let n: V = [flip.neg_where(ns[0]), flip.neg_where(ns[1]), flip.neg_where(ns[2])];
+    // Frame::from_normal
+    let sign = F::splat(1.0).copysign(n[2]);
+    let a = F::splat(-1.0) / (sign + n[2]);
+    let bb = n[0] * n[1] * a;
+    let fs: V = [1.0 + sign * n[0] * n[0] * a, sign * bb, -sign * n[0]];
+    let ft: V = [bb, sign + n[1] * n[1] * a, -n[1]];
+    let mut valid = dot(wo, n).gt(zero);
+    // square_to_cosine_hemisphere (concentric map)
+    let ox = 2.0 * F(i.u[0]) - 1.0;
+    let oy = 2.0 * F(i.u[1]) - 1.0;
+    let at_centre = ox.eq(zero) & oy.eq(zero);
+    let wide_x = ox.abs().gt(oy.abs());
+    let r = wide_x.select(ox, oy);
+    let turns = wide_x.select((oy / ox) * 0.125, 0.25 - (ox / oy) * 0.125);
+    let (sn, cs) = wide::sincos_2pi(turns);
+    let dx = at_centre.select(zero, r * cs);
+    let dy = at_centre.select(zero, r * sn);
+    let z = (1.0 - (dx * dx + dy * dy)).max(zero).sqrt();
+    let pdf = z.gt(zero).select(z * crate::math::INV_PI, zero);
+    valid = valid & pdf.gt(zero);
+    let ratio = z.abs() / pdf;
+    // Frame::to_world
+    let dir: V = std::array::from_fn(|c| (fs[c] * dx + ft[c] * dy) + n[c] * z);
+    // offset_ray_origin(p, ng, dir)
+    let pa = [p[0].abs(), p[1].abs(), p[2].abs()];
+    let mx = pa[1].gt(pa[2]).select(pa[1], pa[2]);
+    let mx = pa[0].gt(mx).select(pa[0], mx);
+    let mag = (1.0 + mx) * crate::accel::triangle::RAY_OFFSET_SCALE;
+    let mag = dot(ng_off, dir).ge(zero).select(mag, -mag);
+    let mut out = ScatterOut::default();
+    for c in 0..3 {
+        out.o[c] = (p[c] + ng_off[c] * mag).0;
+        out.d[c] = dir[c].0;
+    }
+    out.ratio = ratio.0;
+    out.valid = valid.0;
+    out
+}
+
+/// The scattering kernel for this CPU (AVX2 when available, else the portable lane loops; same
+/// bits either way).
+fn scatter_kernel() -> fn(&ScatterIn) -> ScatterOut {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        fn avx2(i: &ScatterIn) -> ScatterOut {
+            scatter_lanes(i)
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return |i| unsafe { avx2(i) };
+        }
+    }
+    scatter_lanes
+}
+
+/// [`W`] light paths advanced together (scenes whose materials are all Lambertian).
+///
+/// Each lane holds one path; a step traces every lane's ray, runs [`vertex`] (weights,
+/// roulette, deposits) lane by lane, scatters all lanes at once with [`scatter_lanes`], and
+/// refills the lanes whose path ended with the next path of the batch. A path draws its
+/// numbers from its own generator in the same order as [`trace_path`] and the kernel computes
+/// the same bits, so each path is exactly the path `trace_path` would trace: only the order of
+/// the deposits changes, which integer sums ignore. The eight independent paths per step give
+/// the CPU independent work where one path is a chain of dependent operations.
+struct Wavefront;
+
+impl Wavefront {
+    fn run<'a>(
+        ctx: &mut PathCtx<'a, '_>,
+        stream: &RngStream,
+        paths: std::ops::Range<u64>,
+        kernel: fn(&ScatterIn) -> ScatterOut,
+        packet: Option<&PacketAccel>,
+    ) {
+        let mut lanes: [Option<PathState<'a>>; W] = std::array::from_fn(|_| None);
+        let mut next = paths.start;
+        let (scene, sampler) = (ctx.scene, ctx.sampler);
+        let refill = |lane: &mut Option<PathState<'a>>, next: &mut u64| {
+            while lane.is_none() && *next < paths.end {
+                *lane = start_path(scene, sampler, stream.rng(*next));
+                *next += 1;
+            }
+        };
+        for lane in lanes.iter_mut() {
+            refill(lane, &mut next);
+        }
+        let mut inp = ScatterIn::default();
+        let mut texs: [Option<(&'a TextureDesc, Vec2)>; W] = [None; W];
+        while lanes.iter().any(|l| l.is_some()) {
+            let hits: [Option<Hit>; W] = match packet {
+                Some(pa) => {
+                    let mut rays = RayPacket::default();
+                    for (l, lane) in lanes.iter().enumerate() {
+                        if let Some(st) = lane {
+                            rays.set(l, &st.ray);
+                        }
+                    }
+                    pa.intersect(&rays)
+                }
+                None => {
+                    std::array::from_fn(|l| lanes[l].as_ref().and_then(|st| scene.intersect_hit(&st.ray)))
+                }
+            };
+            for l in 0..W {
+                texs[l] = None;
+                let Some(st) = lanes[l].as_mut() else { continue };
+                let Some(v) = vertex(ctx, st, hits[l]) else {
+                    lanes[l] = None;
+                    continue;
+                };
+                let (pr, h) = (v.pr, v.hit);
+                let Mat::Diffuse { tex, two_sided } = pr.mat else {
+                    unreachable!("wavefront: Lambertian only")
+                };
+                // `Lambert::sample`: drawn for the generic sampler, then the direction sample
+                let _uc = st.rng.next_f32();
+                let u = st.rng.next_2d();
+                for c in 0..3 {
+                    inp.o[c][l] = st.ray.o[c];
+                    inp.d[c][l] = st.ray.d[c];
+                    inp.ng[c][l] = pr.ng[c];
+                    inp.ng_off[c][l] = pr.ng_off[c];
+                }
+                inp.t[l] = h.t;
+                match pr.normals {
+                    Some(ns) => {
+                        for (k, nk) in ns.iter().enumerate() {
+                            for c in 0..3 {
+                                inp.n[k][c][l] = nk[c];
+                            }
+                        }
+                        inp.has_n[l] = u32::MAX;
+                    }
+                    None => inp.has_n[l] = 0,
+                }
+                inp.two_sided[l] = if two_sided { u32::MAX } else { 0 };
+                inp.b[0][l] = v.b0;
+                inp.b[1][l] = h.b1;
+                inp.b[2][l] = h.b2;
+                inp.u[0][l] = u.x;
+                inp.u[1][l] = u.y;
+                texs[l] = Some((tex, v.uv));
+            }
+            let out = kernel(&inp);
+            for l in 0..W {
+                let Some((tex, uv)) = texs[l] else {
+                    refill(&mut lanes[l], &mut next);
+                    continue;
+                };
+                let st = lanes[l].as_mut().expect("scattered lanes hold a path");
+                if out.valid[l] == 0 {
+                    lanes[l] = None;
+                    refill(&mut lanes[l], &mut next);
+                    continue;
+                }
+                prefetch_texture(tex, uv);
+                st.pending = Some(Weight::Lambert { tex, uv, ratio: out.ratio[l] });
+                st.ray = Ray::new(
+                    Vec3::new(out.o[0][l], out.o[1][l], out.o[2][l]),
+                    Vec3::new(out.d[0][l], out.d[1][l], out.d[2][l]),
+                );
             }
         }
     }
@@ -693,10 +1024,10 @@ fn prefetch<T>(v: &T) {
 }
 
 /// Survival probability for Russian roulette: the throughput relative to the path's initial
-/// weight (so the roulette does not depend on the absolute power), capped at 0.95.
+/// weight `b0 = max_c β_c` at the light (so the roulette does not depend on the absolute power),
+/// capped at 0.95.
 #[inline]
-fn beta_survival(beta: Spectrum, le: Spectrum, cos: f32, pmf: f32, pdf_pos: f32, pdf_dir: f32) -> f32 {
-    let b0 = (le * (cos / (pmf * pdf_pos * pdf_dir))).max_component();
+fn survival(beta: Spectrum, b0: f32) -> f32 {
     if b0 > 0.0 { (beta.max_component() / b0).min(0.95) } else { 0.0 }
 }
 
@@ -919,8 +1250,8 @@ mod tests {
         let sampler = scene.light_sampler().unwrap();
         let inv_n = 1.0 / s.paths as f64;
         for b in 0..s.paths.div_ceil(s.batch_size) {
-            let mut rng = Rng::new(s.seed, 0x4c54, b);
-            for _ in b * s.batch_size..((b + 1) * s.batch_size).min(s.paths) {
+            for i in b * s.batch_size..((b + 1) * s.batch_size).min(s.paths) {
+                let mut rng = Rng::new(s.seed, RNG_STREAM, i);
                 let (li, pmf, _) = sampler.sample(rng.next_f32());
                 let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
                 let Some(es) = scene.lights[li].sample_le(u_pos, u_dir) else { continue };
@@ -960,7 +1291,8 @@ mod tests {
                     beta *= w;
                     ray = crate::accel::spawn_ray(si.p, si.ng, frame.to_world(bs.wi));
                     if depth >= s.rr_depth {
-                        let q = beta_survival(beta, es.le, cos, pmf, es.pdf_pos, es.pdf_dir);
+                        let q =
+                            survival(beta, (es.le * (cos / (pmf * es.pdf_pos * es.pdf_dir))).max_component());
                         if rng.next_f32() >= q {
                             break;
                         }
@@ -1060,6 +1392,18 @@ mod tests {
                 );
             }
         }
+        // The wavefront (packets or one ray per lane) and one path at a time, and another batch
+        // size: the same paths, bit for bit, hence identical integer sums.
+        let sampler = scene.light_sampler().unwrap();
+        let fp = FixedPoint::new(&scene, &targets, s.paths, 0);
+        let other_batches = LightTraceSettings { batch_size: 1_234, ..s };
+        for (engine, s) in [(Engine::WavefrontRays, s), (Engine::Scalar, s), (Engine::Auto, other_batches)] {
+            let o = trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, engine).unwrap();
+            for k in 0..2 {
+                let (a, b) = (o.maps[k].as_ref().unwrap(), runs[0].maps[k].as_ref().unwrap());
+                assert_eq!((&a.direct, &a.indirect), (&b.direct, &b.indirect), "{engine:?}");
+            }
+        }
     }
 
     #[test]
@@ -1088,7 +1432,7 @@ mod tests {
         let out = loop {
             tries += 1;
             let fp = FixedPoint::new(&scene, &targets, s.paths, shift);
-            match trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}) {
+            match trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, Engine::Auto) {
                 Ok(out) => break out,
                 Err(bits) => {
                     assert!(bits >= 1);

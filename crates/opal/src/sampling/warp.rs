@@ -4,18 +4,19 @@
 use crate::math::{INV_2PI, INV_4PI, INV_PI, PI, Vec2, Vec3};
 
 /// Uniform disk by Shirley's concentric map.
+///
+/// The angle is taken in turns, `θ/2π = (y/x)/8` or `1/4 − (x/y)/8`, and its sine and cosine
+/// come from [`crate::fastmath::sincos_2pi`] (absolute error < 3·10⁻⁷, no libm call; the
+/// light tracer's 8-lane version computes the same bits).
 #[inline]
 pub fn square_to_uniform_disk_concentric(u: Vec2) -> Vec2 {
     let o = 2.0 * u - Vec2::ONE;
     if o.x == 0.0 && o.y == 0.0 {
         return Vec2::ZERO;
     }
-    let (r, theta) = if o.x.abs() > o.y.abs() {
-        (o.x, 0.25 * PI * (o.y / o.x))
-    } else {
-        (o.y, 0.5 * PI - 0.25 * PI * (o.x / o.y))
-    };
-    let (s, c) = theta.sin_cos();
+    let (r, turns) =
+        if o.x.abs() > o.y.abs() { (o.x, (o.y / o.x) * 0.125) } else { (o.y, 0.25 - (o.x / o.y) * 0.125) };
+    let (s, c) = crate::fastmath::sincos_2pi(turns);
     Vec2::new(r * c, r * s)
 }
 

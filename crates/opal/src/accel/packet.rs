@@ -1,0 +1,325 @@
+//! Eight rays at once against a tiny triangle soup: one ray per SIMD lane.
+//!
+//! [`super::TinyAccel`] puts eight *triangles* in the lanes and traces one ray at a time; every
+//! ray then pays a chain of dependent operations (set-up, the groups, a horizontal minimum, the
+//! extraction of the winning lane) that leaves most of the core idle. Code that has eight
+//! independent rays at hand (the light tracer's wavefront, [`crate::integrator::light_tracer`])
+//! can instead put the *rays* in the lanes: every triangle is broadcast to all lanes and tested
+//! against the eight rays with the same watertight test, and each lane keeps its closest hit
+//! with a select. Successive triangles are independent work, so the CPU overlaps them.
+//!
+//! **Same hits as [`super::TinyAccel`] and [`super::BruteForce`]**: per lane, the axis
+//! permutation and shear of [`super::TriRay`] (the permuted components of a broadcast corner are
+//! picked with one `vpermps` per axis), then `a_kx − S_x a_kz` etc., the edge functions, `det`,
+//! `t` and the barycentrics with the same operations in the same order (Rust never contracts to
+//! FMA). Triangles are visited in index order and a lane takes a hit only if it is strictly
+//! closer, so ties keep the lowest index. A lane in which some edge function is exactly zero
+//! (for any triangle) is recomputed by the scalar [`super::TriRay`] loop with its f64 fallback,
+//! as the brute force does. Without AVX2 every lane takes that scalar loop.
+//!
+//! Tests: unit tests below (random soups of 1–64 triangles, the Cornell box with rays leaving
+//! its surfaces, zero-edge rays through shared corners, inactive lanes, ties).
+
+use super::Hit;
+use super::triangle::TriRay;
+use crate::geometry::Ray;
+use crate::math::Vec3;
+
+/// Rays per packet (SIMD lanes).
+pub const PACKET: usize = 8;
+
+/// Eight rays, structure of arrays. A lane with `tmax ≤ 0` is inactive (never hits).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RayPacket {
+    /// Origins, `o[axis][lane]`.
+    pub o: [[f32; PACKET]; 3],
+    /// Directions (need not be normalised), `d[axis][lane]`.
+    pub d: [[f32; PACKET]; 3],
+    /// Largest parameter per lane.
+    pub tmax: [f32; PACKET],
+}
+
+impl RayPacket {
+    /// The ray of lane `l`.
+    pub fn ray(&self, l: usize) -> Ray {
+        Ray {
+            o: Vec3::new(self.o[0][l], self.o[1][l], self.o[2][l]),
+            d: Vec3::new(self.d[0][l], self.d[1][l], self.d[2][l]),
+            tmax: self.tmax[l],
+        }
+    }
+    /// Sets lane `l` to `ray`.
+    pub fn set(&mut self, l: usize, ray: &Ray) {
+        for a in 0..3 {
+            self.o[a][l] = ray.o[a];
+            self.d[a][l] = ray.d[a];
+        }
+        self.tmax[l] = ray.tmax;
+    }
+}
+
+/// A triangle corner padded to 16 bytes (one 128-bit load).
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(16))]
+struct Corner([f32; 4]);
+
+/// Tiny triangle soup for [`RayPacket`] queries (see the module docs).
+#[derive(Clone, Debug)]
+pub struct PacketAccel {
+    corners: Vec<[Corner; 3]>,
+    tris: Vec<[Vec3; 3]>,
+}
+
+impl PacketAccel {
+    /// Wraps a triangle soup (the cost per packet is linear in the triangle count: meant for a
+    /// few dozen).
+    pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
+        let corners = tris.iter().map(|t| t.map(|p| Corner([p.x, p.y, p.z, 0.0]))).collect();
+        PacketAccel { corners, tris }
+    }
+
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.tris.len()
+    }
+
+    /// Whether there are no triangles.
+    pub fn is_empty(&self) -> bool {
+        self.tris.is_empty()
+    }
+
+    /// Closest hit of every lane with `0 < t < tmax` (`None` for misses and inactive lanes).
+    pub fn intersect(&self, rays: &RayPacket) -> [Option<Hit>; PACKET] {
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { self.intersect_avx2(rays) };
+        }
+        std::array::from_fn(|l| self.scalar(&rays.ray(l)))
+    }
+
+    /// The brute-force loop for one ray (lowest index on ties).
+    fn scalar(&self, ray: &Ray) -> Option<Hit> {
+        // (an inactive lane, tmax ≤ 0, never hits: every hit needs 0 < t < tmax)
+        let tr = TriRay::new(ray);
+        let mut tmax = ray.tmax;
+        let mut best = None;
+        for (i, tri) in self.tris.iter().enumerate() {
+            if let Some((t, b1, b2)) = tr.intersect(tri, tmax) {
+                tmax = t;
+                best = Some(Hit { t, prim: i as u32, b1, b2 });
+            }
+        }
+        best
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn intersect_avx2(&self, rays: &RayPacket) -> [Option<Hit>; PACKET] {
+        use std::arch::x86_64::*;
+        // Per lane: the axis choice and shear of `TriRay::new`.
+        let mut k = [[0i32; PACKET]; 3];
+        let mut op = [[0.0f32; PACKET]; 3];
+        let mut sh = [[0.0f32; PACKET]; 3];
+        for l in 0..PACKET {
+            let d = [rays.d[0][l], rays.d[1][l], rays.d[2][l]];
+            let a = d.map(f32::abs);
+            let kz = if a[0] > a[1] {
+                if a[0] > a[2] { 0 } else { 2 }
+            } else if a[1] > a[2] {
+                1
+            } else {
+                2
+            };
+            let mut kx = if kz == 2 { 0 } else { kz + 1 };
+            let mut ky = if kx == 2 { 0 } else { kx + 1 };
+            if d[kz] < 0.0 {
+                std::mem::swap(&mut kx, &mut ky);
+            }
+            let sz = 1.0 / d[kz];
+            for (j, &kk) in [kx, ky, kz].iter().enumerate() {
+                k[j][l] = kk as i32;
+                op[j][l] = rays.o[kk][l];
+            }
+            sh[0][l] = d[kx] * sz;
+            sh[1][l] = d[ky] * sz;
+            sh[2][l] = sz;
+        }
+        // SAFETY (all loads and stores below): unaligned 8-lane accesses to `[_; 8]` arrays.
+        let ldi = |a: &[i32; PACKET]| unsafe { _mm256_loadu_si256(a.as_ptr().cast()) };
+        let ldf = |a: &[f32; PACKET]| unsafe { _mm256_loadu_ps(a.as_ptr()) };
+        let (ikx, iky, ikz) = (ldi(&k[0]), ldi(&k[1]), ldi(&k[2]));
+        let (ox, oy, oz) = (ldf(&op[0]), ldf(&op[1]), ldf(&op[2]));
+        let (sx, sy, sz) = (ldf(&sh[0]), ldf(&sh[1]), ldf(&sh[2]));
+        let zero = _mm256_setzero_ps();
+        let one = _mm256_set1_ps(1.0);
+        let mut best_t = ldf(&rays.tmax);
+        let mut best_i = _mm256_set1_epi32(-1);
+        let mut best_b1 = zero;
+        let mut best_b2 = zero;
+        let mut zany = zero;
+        for (i, c) in self.corners.iter().enumerate() {
+            let mut px = [zero; 3];
+            let mut py = [zero; 3];
+            let mut pz = [zero; 3];
+            for v in 0..3 {
+                // SAFETY: `Corner` is 16-byte aligned and holds 4 floats.
+                let p = unsafe { _mm256_broadcast_ps(&*(c[v].0.as_ptr() as *const __m128)) };
+                // both 128-bit halves hold the corner: an in-lane permute picks axis k per lane
+                let az = _mm256_sub_ps(_mm256_permutevar_ps(p, ikz), oz);
+                let ax = _mm256_sub_ps(_mm256_permutevar_ps(p, ikx), ox);
+                let ay = _mm256_sub_ps(_mm256_permutevar_ps(p, iky), oy);
+                px[v] = _mm256_sub_ps(ax, _mm256_mul_ps(sx, az));
+                py[v] = _mm256_sub_ps(ay, _mm256_mul_ps(sy, az));
+                pz[v] = _mm256_mul_ps(sz, az);
+            }
+            let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
+            let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
+            let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
+            let eq0 = |x| _mm256_cmp_ps::<_CMP_EQ_OQ>(x, zero);
+            zany = _mm256_or_ps(zany, _mm256_or_ps(_mm256_or_ps(eq0(u), eq0(v)), eq0(w)));
+            // Lanes with a zero edge function are recomputed by the scalar loop, so here u, v, w
+            // are non-zero: mixed signs ⇔ the sign bits differ (`TriRay`'s test for such
+            // values). Then `det ≠ 0`, and `TriRay`'s check `(tt > 0) == (det > 0)` only rejects
+            // lanes with `t = tt · (1/det) ≤ 0` or NaN, which `t > 0` rejects as well.
+            let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
+            let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
+            let tt = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
+                _mm256_mul_ps(w, pz[2]),
+            );
+            let inv = _mm256_div_ps(one, det);
+            let t = _mm256_mul_ps(tt, inv);
+            // `t < best_t` also enforces `t < tmax` (best_t starts at tmax and only decreases)
+            let good =
+                _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(t, zero), _mm256_cmp_ps::<_CMP_LT_OQ>(t, best_t));
+            // blends look at the sign bit only: set where `good` and the signs agree
+            let take = _mm256_andnot_ps(mixed, good);
+            best_t = _mm256_blendv_ps(best_t, t, take);
+            best_b1 = _mm256_blendv_ps(best_b1, _mm256_mul_ps(v, inv), take);
+            best_b2 = _mm256_blendv_ps(best_b2, _mm256_mul_ps(w, inv), take);
+            best_i = _mm256_castps_si256(_mm256_blendv_ps(
+                _mm256_castsi256_ps(best_i),
+                _mm256_castsi256_ps(_mm256_set1_epi32(i as i32)),
+                take,
+            ));
+        }
+        let mut ts = [0.0f32; PACKET];
+        let mut b1 = [0.0f32; PACKET];
+        let mut b2 = [0.0f32; PACKET];
+        let mut idx = [0i32; PACKET];
+        // SAFETY: as above.
+        unsafe {
+            _mm256_storeu_ps(ts.as_mut_ptr(), best_t);
+            _mm256_storeu_ps(b1.as_mut_ptr(), best_b1);
+            _mm256_storeu_ps(b2.as_mut_ptr(), best_b2);
+            _mm256_storeu_si256(idx.as_mut_ptr().cast(), best_i);
+        }
+        let zmask = _mm256_movemask_ps(zany) as u32;
+        std::array::from_fn(|l| {
+            if zmask & (1 << l) != 0 {
+                // Rare: an exactly-zero edge function: the scalar test with its f64 recomputation.
+                self.scalar(&rays.ray(l))
+            } else if idx[l] >= 0 {
+                Some(Hit { t: ts[l], prim: idx[l] as u32, b1: b1[l], b2: b2[l] })
+            } else {
+                None
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::{BruteForce, scenes};
+    use crate::sampling::{Rng, square_to_cosine_hemisphere};
+
+    fn check(tris: Vec<[Vec3; 3]>, rays: &[Ray]) {
+        let pa = PacketAccel::new(tris.clone());
+        let bf = BruteForce::new(tris);
+        for chunk in rays.chunks(PACKET) {
+            let mut p = RayPacket::default();
+            for (l, r) in chunk.iter().enumerate() {
+                p.set(l, r);
+            }
+            let got = pa.intersect(&p);
+            for (l, r) in chunk.iter().enumerate() {
+                assert_eq!(got[l], bf.intersect(r), "lane {l}: {r:?}");
+            }
+            for g in &got[chunk.len()..] {
+                assert_eq!(*g, None, "inactive lanes never hit");
+            }
+        }
+    }
+
+    #[test]
+    fn random_soups_match_brute_force() {
+        for (seed, n) in [(0u64, 1usize), (1, 7), (2, 8), (3, 31), (4, 64)] {
+            let tris = scenes::random_soup(n, 0.5, seed);
+            let mut rng = Rng::new(seed, 11, 0);
+            let rays: Vec<Ray> = (0..4003)
+                .map(|i| {
+                    let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 3.0 - 1.5;
+                    let d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+                    let tmax = if i % 3 == 0 { rng.next_f32() * 2.0 } else { f32::INFINITY };
+                    Ray { o, d, tmax }
+                })
+                .collect();
+            check(tris, &rays);
+        }
+    }
+
+    #[test]
+    fn cornell_box_rays_from_its_surfaces_match_brute_force() {
+        // What the light tracer traces: rays leaving points of the surfaces, cosine-distributed,
+        // plus axis-aligned directions (zero components) and rays through shared corners.
+        let tris = scenes::cornell_box();
+        let mut rng = Rng::new(7, 3, 0);
+        let mut rays = Vec::new();
+        for i in 0..20_000usize {
+            let tri = tris[i % tris.len()];
+            let (b1, b2) = (rng.next_f32() * 0.5, rng.next_f32() * 0.5);
+            let p = tri[0] * (1.0 - b1 - b2) + tri[1] * b1 + tri[2] * b2;
+            let ng = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize();
+            let n = if rng.next_f32() < 0.5 { ng } else { -ng };
+            let f = crate::math::Frame::from_normal(n);
+            let d = f.to_world(square_to_cosine_hemisphere(rng.next_2d()));
+            rays.push(crate::accel::spawn_ray(p, ng, d));
+        }
+        for a in Vec3::AXES {
+            for s in [1.0f32, -1.0] {
+                rays.push(Ray::new(Vec3::new(0.1, 0.2, 0.3), a * s));
+                rays.push(Ray::new(Vec3::ZERO, a * s));
+            }
+        }
+        for tri in &tris {
+            for c in tri {
+                rays.push(Ray::new(Vec3::new(0.05, 0.1, -0.02), *c - Vec3::new(0.05, 0.1, -0.02)));
+            }
+        }
+        check(tris, &rays);
+    }
+
+    #[test]
+    fn ties_keep_the_lowest_index_and_zero_edges_take_the_scalar_path() {
+        let tri = [Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.0, 1.0, 1.0)];
+        let far = [Vec3::new(0.0, 0.0, 2.0), Vec3::new(1.0, 0.0, 2.0), Vec3::new(0.0, 1.0, 2.0)];
+        let rays = [
+            Ray::new(Vec3::new(0.2, 0.2, 0.0), Vec3::Z),
+            // through the shared corner (0, 0): exact-zero edge functions
+            Ray::new(Vec3::ZERO, Vec3::Z),
+            Ray::new(Vec3::new(0.2, 0.2, 1.5), -Vec3::Z),
+        ];
+        let pa = PacketAccel::new(vec![far, tri, tri, far, tri]);
+        let mut p = RayPacket::default();
+        for (l, r) in rays.iter().enumerate() {
+            p.set(l, r);
+        }
+        let h = pa.intersect(&p);
+        assert_eq!(h[0].map(|h| (h.prim, h.t)), Some((1, 1.0)));
+        assert_eq!(h[1].map(|h| (h.prim, h.t)), Some((1, 1.0)));
+        assert_eq!(h[2].map(|h| (h.prim, h.t)), Some((1, 0.5)));
+        check(vec![far, tri, tri, far, tri], &rays);
+    }
+}
