@@ -117,40 +117,40 @@ impl PacketAccel {
     #[target_feature(enable = "avx2")]
     fn intersect_avx2(&self, rays: &RayPacket) -> [Option<Hit>; PACKET] {
         use std::arch::x86_64::*;
-        // Per lane: the axis choice and shear of `TriRay::new`.
-        let mut k = [[0i32; PACKET]; 3];
-        let mut op = [[0.0f32; PACKET]; 3];
-        let mut sh = [[0.0f32; PACKET]; 3];
-        for l in 0..PACKET {
-            let d = [rays.d[0][l], rays.d[1][l], rays.d[2][l]];
-            let a = d.map(f32::abs);
-            let kz = if a[0] > a[1] {
-                if a[0] > a[2] { 0 } else { 2 }
-            } else if a[1] > a[2] {
-                1
-            } else {
-                2
-            };
-            let mut kx = if kz == 2 { 0 } else { kz + 1 };
-            let mut ky = if kx == 2 { 0 } else { kx + 1 };
-            if d[kz] < 0.0 {
-                std::mem::swap(&mut kx, &mut ky);
-            }
-            let sz = 1.0 / d[kz];
-            for (j, &kk) in [kx, ky, kz].iter().enumerate() {
-                k[j][l] = kk as i32;
-                op[j][l] = rays.o[kk][l];
-            }
-            sh[0][l] = d[kx] * sz;
-            sh[1][l] = d[ky] * sz;
-            sh[2][l] = sz;
-        }
+        // Per lane, branch-free: the axis choice and shear of `TriRay::new`, except that kx, ky
+        // are always (kz + 1, kz + 2) mod 3: `TriRay` swaps them when d_kz < 0, which negates u,
+        // v, w, det and tt exactly (IEEE `a − b = −(b − a)`) and leaves the sign tests, t and the
+        // barycentrics bit for bit unchanged.
         // SAFETY (all loads and stores below): unaligned 8-lane accesses to `[_; 8]` arrays.
-        let ldi = |a: &[i32; PACKET]| unsafe { _mm256_loadu_si256(a.as_ptr().cast()) };
         let ldf = |a: &[f32; PACKET]| unsafe { _mm256_loadu_ps(a.as_ptr()) };
-        let (ikx, iky, ikz) = (ldi(&k[0]), ldi(&k[1]), ldi(&k[2]));
-        let (ox, oy, oz) = (ldf(&op[0]), ldf(&op[1]), ldf(&op[2]));
-        let (sx, sy, sz) = (ldf(&sh[0]), ldf(&sh[1]), ldf(&sh[2]));
+        let (dx, dy, dz) = (ldf(&rays.d[0]), ldf(&rays.d[1]), ldf(&rays.d[2]));
+        let abs = |x| _mm256_andnot_ps(_mm256_set1_ps(-0.0), x);
+        let (ax, ay, az) = (abs(dx), abs(dy), abs(dz));
+        let gt = |a, b| _mm256_cmp_ps::<_CMP_GT_OQ>(a, b);
+        // kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2), as masks
+        let x_gt_y = gt(ax, ay);
+        let kz0 = _mm256_and_ps(x_gt_y, gt(ax, az));
+        let kz1 = _mm256_andnot_ps(x_gt_y, gt(ay, az));
+        // component k of (x, y, z) per lane, k given by the masks "k = 0" and "k = 1"
+        let pick = |m0, m1, x, y, z| _mm256_blendv_ps(_mm256_blendv_ps(z, y, m1), x, m0);
+        let all = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+        let kz2 = _mm256_andnot_ps(_mm256_or_ps(kz0, kz1), all);
+        // kx = kz + 1 mod 3: 0 iff kz = 2, 1 iff kz = 0; ky = kz + 2 mod 3: 0 iff kz = 1, 1 iff kz = 2
+        let (kx0, kx1) = (kz2, kz0);
+        let (ky0, ky1) = (kz1, kz2);
+        let d_kz = pick(kz0, kz1, dx, dy, dz);
+        let sz = _mm256_div_ps(_mm256_set1_ps(1.0), d_kz);
+        let sx = _mm256_mul_ps(pick(kx0, kx1, dx, dy, dz), sz);
+        let sy = _mm256_mul_ps(pick(ky0, ky1, dx, dy, dz), sz);
+        let (o0, o1, o2) = (ldf(&rays.o[0]), ldf(&rays.o[1]), ldf(&rays.o[2]));
+        let (ox, oy, oz) =
+            (pick(kx0, kx1, o0, o1, o2), pick(ky0, ky1, o0, o1, o2), pick(kz0, kz1, o0, o1, o2));
+        // axis indices for the in-lane permutes: k = 0, 1 or 2
+        let index = |m0, m1| {
+            let i = _mm256_blendv_ps(_mm256_set1_ps(2.0), _mm256_set1_ps(1.0), m1);
+            _mm256_cvttps_epi32(_mm256_blendv_ps(i, _mm256_set1_ps(0.0), m0))
+        };
+        let (ikx, iky, ikz) = (index(kx0, kx1), index(ky0, ky1), index(kz0, kz1));
         let zero = _mm256_setzero_ps();
         let one = _mm256_set1_ps(1.0);
         let mut best_t = ldf(&rays.tmax);

@@ -465,6 +465,8 @@ struct Prim<'a> {
     shape: u32,
     /// Fixed-point units per unit of β for a deposit (0 = no deposit).
     factor: f64,
+    /// `ρ · 1/π` of a Lambertian material with a constant reflectance ρ.
+    kd_pi: Option<Spectrum>,
     /// Deposit map size (texels).
     width: u32,
     height: u32,
@@ -495,6 +497,10 @@ fn prims<'a>(scene: &'a Scene, targets: &[Option<IrradianceTarget>], fp: &FixedP
                 normals: (!m.normals.is_empty()).then(|| [m.normals[i0], m.normals[i1], m.normals[i2]]),
                 shape: k as u32,
                 factor: fp.factor[sh.first_prim as usize + j],
+                kd_pi: match mat {
+                    Mat::Diffuse { tex: TextureDesc::Constant(c), .. } => Some(*c * INV_PI),
+                    _ => None,
+                },
                 width,
                 height,
                 mat,
@@ -514,6 +520,12 @@ enum Weight<'a> {
         uv: Vec2,
         ratio: f32,
     },
+    /// Lambert with a constant reflectance ρ: `(ρ · 1/π) · ratio` (`kd_pi` = ρ · 1/π, the same
+    /// product as in `Lambert`, evaluated once per triangle).
+    LambertConst {
+        kd_pi: Spectrum,
+        ratio: f32,
+    },
 }
 
 impl Weight<'_> {
@@ -522,6 +534,7 @@ impl Weight<'_> {
         match self {
             Weight::Known(w) => w,
             Weight::Lambert { tex, uv, ratio } => (eval_texture(tex, uv) * INV_PI) * ratio,
+            Weight::LambertConst { kd_pi, ratio } => kd_pi * ratio,
         }
     }
 }
@@ -703,8 +716,14 @@ fn trace_path(ctx: &mut PathCtx, rng: Rng) {
                 if pdf <= 0.0 {
                     break;
                 }
-                prefetch_texture(tex, v.uv);
-                st.pending = Some(Weight::Lambert { tex, uv: v.uv, ratio: wi.z.abs() / pdf });
+                let ratio = wi.z.abs() / pdf;
+                st.pending = Some(match pr.kd_pi {
+                    Some(kd_pi) => Weight::LambertConst { kd_pi, ratio },
+                    None => {
+                        prefetch_texture(tex, v.uv);
+                        Weight::Lambert { tex, uv: v.uv, ratio }
+                    }
+                });
                 st.ray = super::spawn_ray(p, pr.ng, frame.to_world(wi));
             }
             Mat::Generic => {
@@ -866,7 +885,7 @@ impl Wavefront {
             refill(lane, &mut next);
         }
         let mut inp = ScatterIn::default();
-        let mut texs: [Option<(&'a TextureDesc, Vec2)>; W] = [None; W];
+        let mut texs: [Option<(&'a TextureDesc, Vec2, Option<Spectrum>)>; W] = [None; W];
         while lanes.iter().any(|l| l.is_some()) {
             let hits: [Option<Hit>; W] = match packet {
                 Some(pa) => {
@@ -920,11 +939,11 @@ impl Wavefront {
                 inp.b[2][l] = h.b2;
                 inp.u[0][l] = u.x;
                 inp.u[1][l] = u.y;
-                texs[l] = Some((tex, v.uv));
+                texs[l] = Some((tex, v.uv, pr.kd_pi));
             }
             let out = kernel(&inp);
             for l in 0..W {
-                let Some((tex, uv)) = texs[l] else {
+                let Some((tex, uv, kd_pi)) = texs[l] else {
                     refill(&mut lanes[l], &mut next);
                     continue;
                 };
@@ -934,8 +953,14 @@ impl Wavefront {
                     refill(&mut lanes[l], &mut next);
                     continue;
                 }
-                prefetch_texture(tex, uv);
-                st.pending = Some(Weight::Lambert { tex, uv, ratio: out.ratio[l] });
+                let ratio = out.ratio[l];
+                st.pending = Some(match kd_pi {
+                    Some(kd_pi) => Weight::LambertConst { kd_pi, ratio },
+                    None => {
+                        prefetch_texture(tex, uv);
+                        Weight::Lambert { tex, uv, ratio }
+                    }
+                });
                 st.ray = Ray::new(
                     Vec3::new(out.o[0][l], out.o[1][l], out.o[2][l]),
                     Vec3::new(out.d[0][l], out.d[1][l], out.d[2][l]),

@@ -48,6 +48,10 @@ pub struct TriangleLight {
     pub radiance: Spectrum,
     /// Index of the triangle in the scene's triangle soup.
     pub prim: u32,
+    /// `Frame::from_normal(n)` (emission directions; cached: `sample_le` is per light path).
+    frame: Frame,
+    /// `1 / area` (the area density of `sample_le`).
+    inv_area: f32,
 }
 
 impl TriangleLight {
@@ -58,7 +62,8 @@ impl TriangleLight {
         if !(len > 0.0 && len.is_finite()) {
             return None;
         }
-        Some(TriangleLight { p, n: c / len, area: 0.5 * len, radiance, prim })
+        let (n, area) = (c / len, 0.5 * len);
+        Some(TriangleLight { p, n, area, radiance, prim, frame: Frame::from_normal(n), inv_area: 1.0 / area })
     }
     fn point(&self, u: Vec2) -> Vec3 {
         let b = square_to_uniform_triangle(u);
@@ -185,12 +190,12 @@ impl Light {
                 if local.z <= 0.0 {
                     return None;
                 }
-                let d = Frame::from_normal(t.n).to_world(local);
+                let d = t.frame.to_world(local);
                 Some(EmissionSample {
                     ray: Ray::new(o, d),
                     n: t.n,
                     le: t.radiance,
-                    pdf_pos: 1.0 / t.area,
+                    pdf_pos: t.inv_area,
                     pdf_dir: local.z / PI,
                 })
             }
