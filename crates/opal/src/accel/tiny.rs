@@ -65,23 +65,21 @@ struct ShearRay {
 impl ShearRay {
     #[inline(always)]
     fn new(ray: &Ray) -> Self {
-        // Same axis choice and constants as `TriRay::new`.
+        // Same axis choice and constants as `TriRay::new`, without branches (random directions
+        // make them unpredictable): `kz` from the three comparisons, `(kx, ky)` from `kz` and the
+        // sign of `d[kz]`, by table.
+        const KZ: [u8; 8] = [2, 1, 2, 1, 2, 2, 0, 0];
+        const KXY: [[u8; 2]; 8] = [[1, 2], [2, 1], [2, 0], [0, 2], [0, 1], [1, 0], [0, 0], [0, 0]];
         let d = ray.d;
         let a = d.abs();
-        let kz = if a.x > a.y {
-            if a.x > a.z { 0 } else { 2 }
-        } else if a.y > a.z {
-            1
-        } else {
-            2
-        };
-        let mut kx = if kz == 2 { 0 } else { kz + 1 };
-        let mut ky = if kx == 2 { 0 } else { kx + 1 };
-        if d[kz] < 0.0 {
-            std::mem::swap(&mut kx, &mut ky);
-        }
-        let sz = 1.0 / d[kz];
-        ShearRay { o: ray.o.to_array(), k: [kx, ky, kz], sx: d[kx] * sz, sy: d[ky] * sz, sz }
+        let idx = ((a.x > a.y) as usize) << 2 | ((a.x > a.z) as usize) << 1 | (a.y > a.z) as usize;
+        let kz = KZ[idx] as usize;
+        let da = [d.x, d.y, d.z, 0.0];
+        let dz = da[kz & 3];
+        let [kx, ky] = KXY[(kz << 1 | (dz < 0.0) as usize) & 7];
+        let (kx, ky) = (kx as usize, ky as usize);
+        let sz = 1.0 / dz;
+        ShearRay { o: ray.o.to_array(), k: [kx, ky, kz], sx: da[kx & 3] * sz, sy: da[ky & 3] * sz, sz }
     }
 }
 
@@ -332,7 +330,6 @@ impl TinyAccel {
         let zero = _mm256_setzero_ps();
         let one = _mm256_set1_ps(1.0);
         let inf = _mm256_set1_ps(f32::INFINITY);
-        let tmax = _mm256_set1_ps(ray.tmax);
         // Rows `0..n` are written below before they are read; the rest is never read.
         let mut ts = [MaybeUninit::<[f32; LANES]>::uninit(); MAX_BRANCHLESS_GROUPS];
         let mut b1s = [MaybeUninit::<[f32; LANES]>::uninit(); MAX_BRANCHLESS_GROUPS];
@@ -341,8 +338,9 @@ impl TinyAccel {
         let mut zany = zero;
         let n = self.groups.len();
         for (gi, g) in self.groups.iter().enumerate() {
-            // SAFETY: `Group` is 32-byte aligned and each `[f32; 8]` row is 32 bytes.
-            let ld = |v: usize, a: usize| unsafe { _mm256_load_ps(g.v[v][a].as_ptr()) };
+            // SAFETY: `Group` is 32-byte aligned and each `[f32; 8]` row is 32 bytes; the axes
+            // `kx, ky, kz` come from `ShearRay::new`'s tables, all < 3.
+            let ld = |v: usize, a: usize| unsafe { _mm256_load_ps(g.v[v].get_unchecked(a).as_ptr()) };
             let mut px = [zero; 3];
             let mut py = [zero; 3];
             let mut pz = [zero; 3];
@@ -356,11 +354,10 @@ impl TinyAccel {
             let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
             let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
             let eq0 = |x| _mm256_cmp_ps::<_CMP_EQ_OQ>(x, zero);
-            let lt0 = |x| _mm256_cmp_ps::<_CMP_LT_OQ>(x, zero);
-            let gt0 = |x| _mm256_cmp_ps::<_CMP_GT_OQ>(x, zero);
             zany = _mm256_or_ps(zany, _mm256_or_ps(_mm256_or_ps(eq0(u), eq0(v)), eq0(w)));
-            let neg = _mm256_or_ps(_mm256_or_ps(lt0(u), lt0(v)), lt0(w));
-            let pos = _mm256_or_ps(_mm256_or_ps(gt0(u), gt0(v)), gt0(w));
+            // Only used when no edge function is zero (else the loop decides): `u, v, w` are then
+            // non-zero or NaN, so "mixed signs" is "sign bits differ" (sign bit of the result).
+            let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
             let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
             let tt = _mm256_add_ps(
                 _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
@@ -368,13 +365,12 @@ impl TinyAccel {
             );
             let inv = _mm256_div_ps(one, det);
             let t = _mm256_mul_ps(tt, inv);
-            let bad = _mm256_or_ps(_mm256_and_ps(neg, pos), _mm256_xor_ps(gt0(tt), gt0(det)));
-            let good = _mm256_and_ps(
-                _mm256_and_ps(_mm256_cmp_ps::<_CMP_NEQ_UQ>(det, zero), gt0(t)),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(t, tmax),
-            );
-            // t of the hit lanes, +∞ elsewhere
-            let th = _mm256_blendv_ps(inf, t, _mm256_andnot_ps(bad, good));
+            // `TriRay` also asks `det != 0` and `(tt > 0) == (det > 0)`: with non-zero `u, v, w`
+            // of one sign, `det` is non-zero with that sign, and `t = tt · (1/det) > 0` needs
+            // `tt` non-zero with the sign of `det`. `t < tmax` is applied to the minimum below.
+            let reject = _mm256_or_ps(mixed, _mm256_cmp_ps::<_CMP_NGT_UQ>(t, zero));
+            // t of the hit lanes, +∞ elsewhere (blend on the sign bit)
+            let th = _mm256_blendv_ps(t, inf, reject);
             tmin = _mm256_min_ps(tmin, th);
             // SAFETY: `gi < n ≤ MAX_BRANCHLESS_GROUPS` (checked by the caller); unaligned stores
             // of 8 floats into 8-float rows.
@@ -392,7 +388,8 @@ impl TinyAccel {
         let m = _mm256_min_ps(m, _mm256_permute_ps::<0b01_00_11_10>(m));
         let m = _mm256_min_ps(m, _mm256_permute_ps::<0b10_11_00_01>(m));
         let best = _mm256_cvtss_f32(m);
-        if best == f32::INFINITY {
+        // (false for +∞ and for a NaN `tmax`)
+        if !(best < ray.tmax) {
             return None;
         }
         // the lowest (group, lane) holding the minimum
