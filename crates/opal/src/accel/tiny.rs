@@ -129,6 +129,80 @@ fn closest_lane(mask: u32, t: &[f32; LANES]) -> usize {
     l
 }
 
+/// Per-ray constants of the AVX group test: axis permutation, permuted origin and shear, each
+/// broadcast to the 8 lanes.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+struct AvxRay {
+    k: [usize; 3],
+    o: [std::arch::x86_64::__m256; 3],
+    s: [std::arch::x86_64::__m256; 3],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl AvxRay {
+    #[target_feature(enable = "avx")]
+    fn new(r: &ShearRay) -> Self {
+        use std::arch::x86_64::_mm256_set1_ps;
+        AvxRay {
+            k: r.k,
+            o: r.k.map(|k| _mm256_set1_ps(r.o[k])),
+            s: [_mm256_set1_ps(r.sx), _mm256_set1_ps(r.sy), _mm256_set1_ps(r.sz)],
+        }
+    }
+}
+
+/// The watertight test on the 8 triangles of a group (AVX), up to `t`: `zero` = lanes with an
+/// exactly-zero edge function (all bits set), `mixed` = sign bit set where the edge functions'
+/// signs differ (meaningful only without a zero edge function), `t = tt · (1/det)`, and `v`,
+/// `w`, `inv = 1/det` for the barycentrics `v · inv`, `w · inv`.
+#[cfg(target_arch = "x86_64")]
+struct GroupAvx {
+    zero: std::arch::x86_64::__m256,
+    mixed: std::arch::x86_64::__m256,
+    t: std::arch::x86_64::__m256,
+    v: std::arch::x86_64::__m256,
+    w: std::arch::x86_64::__m256,
+    inv: std::arch::x86_64::__m256,
+}
+
+/// See [`GroupAvx`]: `TriRay::intersect`'s arithmetic, 8 triangles per instruction.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[inline]
+fn group_avx(g: &Group, r: &AvxRay) -> GroupAvx {
+    use std::arch::x86_64::*;
+    let [kx, ky, kz] = r.k;
+    let ([ox, oy, oz], [sx, sy, sz]) = (r.o, r.s);
+    let zero = _mm256_setzero_ps();
+    // SAFETY: `Group` is 32-byte aligned and each `[f32; 8]` row is 32 bytes, so every row
+    // pointer is aligned and valid for 8 reads; the axes come from `ShearRay::new`'s tables,
+    // all < 3.
+    let ld = |v: usize, a: usize| unsafe { _mm256_load_ps(g.v[v].get_unchecked(a).as_ptr()) };
+    let mut px = [zero; 3];
+    let mut py = [zero; 3];
+    let mut pz = [zero; 3];
+    for v in 0..3 {
+        let az = _mm256_sub_ps(ld(v, kz), oz);
+        px[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, kx), ox), _mm256_mul_ps(sx, az));
+        py[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, ky), oy), _mm256_mul_ps(sy, az));
+        pz[v] = _mm256_mul_ps(sz, az);
+    }
+    let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
+    let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
+    let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
+    let eq0 = |x| _mm256_cmp_ps::<_CMP_EQ_OQ>(x, zero);
+    let zero_edge = _mm256_or_ps(_mm256_or_ps(eq0(u), eq0(v)), eq0(w));
+    let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
+    let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
+    let tt = _mm256_add_ps(
+        _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
+        _mm256_mul_ps(w, pz[2]),
+    );
+    let inv = _mm256_div_ps(_mm256_set1_ps(1.0), det);
+    GroupAvx { zero: zero_edge, mixed, t: _mm256_mul_ps(tt, inv), v, w, inv }
+}
+
 /// Flat all-triangles structure for tiny scenes (see the module docs).
 #[derive(Clone, Debug)]
 pub struct TinyAccel {
@@ -250,45 +324,17 @@ impl TinyAccel {
     #[target_feature(enable = "avx")]
     fn traverse_avx<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
         use std::arch::x86_64::*;
-        let r = ShearRay::new(ray);
-        let [kx, ky, kz] = r.k;
-        let (ox, oy, oz) = (_mm256_set1_ps(r.o[kx]), _mm256_set1_ps(r.o[ky]), _mm256_set1_ps(r.o[kz]));
-        let (sx, sy, sz) = (_mm256_set1_ps(r.sx), _mm256_set1_ps(r.sy), _mm256_set1_ps(r.sz));
+        let ar = AvxRay::new(&ShearRay::new(ray));
         let zero = _mm256_setzero_ps();
-        let one = _mm256_set1_ps(1.0);
         let mut tmax = ray.tmax;
         let mut best = None;
         for (gi, g) in self.groups.iter().enumerate() {
-            // SAFETY: `Group` is 32-byte aligned and each `[f32; 8]` row is 32 bytes, so every
-            // row pointer is aligned and valid for 8 reads; the axes `kx, ky, kz` come from
-            // `ShearRay::new`'s tables, all < 3.
-            let ld = |v: usize, a: usize| unsafe { _mm256_load_ps(g.v[v].get_unchecked(a).as_ptr()) };
-            let mut px = [zero; 3];
-            let mut py = [zero; 3];
-            let mut pz = [zero; 3];
-            for v in 0..3 {
-                let az = _mm256_sub_ps(ld(v, kz), oz);
-                px[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, kx), ox), _mm256_mul_ps(sx, az));
-                py[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, ky), oy), _mm256_mul_ps(sy, az));
-                pz[v] = _mm256_mul_ps(sz, az);
-            }
-            let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
-            let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
-            let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
-            let eq0 = |x| _mm256_cmp_ps::<_CMP_EQ_OQ>(x, zero);
+            let GroupAvx { zero: zv, mixed, t, v, w, inv } = group_avx(g, &ar);
             let gt0 = |x| _mm256_cmp_ps::<_CMP_GT_OQ>(x, zero);
-            let zmask = _mm256_movemask_ps(_mm256_or_ps(_mm256_or_ps(eq0(u), eq0(v)), eq0(w)));
+            let zmask = _mm256_movemask_ps(zv);
             // The hit mask is used only when no edge function is zero (`zmask == 0`); then
             // "mixed signs" is "sign bits differ" and `TriRay`'s `det != 0`,
             // `(tt > 0) == (det > 0)` follow from `t > 0` (see `closest_avx`).
-            let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
-            let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
-            let tt = _mm256_add_ps(
-                _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
-                _mm256_mul_ps(w, pz[2]),
-            );
-            let inv = _mm256_div_ps(one, det);
-            let t = _mm256_mul_ps(tt, inv);
             let good = _mm256_and_ps(gt0(t), _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_set1_ps(tmax)));
             // sign bit of `mixed` clear and `good`
             let hit = (_mm256_movemask_ps(good) & !_mm256_movemask_ps(mixed)) as u32;
@@ -343,12 +389,8 @@ impl TinyAccel {
     #[target_feature(enable = "avx")]
     fn closest_avx(&self, ray: &Ray) -> Option<Hit> {
         use std::arch::x86_64::*;
-        let r = ShearRay::new(ray);
-        let [kx, ky, kz] = r.k;
-        let (ox, oy, oz) = (_mm256_set1_ps(r.o[kx]), _mm256_set1_ps(r.o[ky]), _mm256_set1_ps(r.o[kz]));
-        let (sx, sy, sz) = (_mm256_set1_ps(r.sx), _mm256_set1_ps(r.sy), _mm256_set1_ps(r.sz));
+        let ar = AvxRay::new(&ShearRay::new(ray));
         let zero = _mm256_setzero_ps();
-        let one = _mm256_set1_ps(1.0);
         let inf = _mm256_set1_ps(f32::INFINITY);
         // Rows `0..n` are written below before they are read; the rest is never read.
         let mut ts = [MaybeUninit::<[f32; LANES]>::uninit(); MAX_BRANCHLESS_GROUPS];
@@ -358,33 +400,10 @@ impl TinyAccel {
         let mut zany = zero;
         let n = self.groups.len();
         for (gi, g) in self.groups.iter().enumerate() {
-            // SAFETY: `Group` is 32-byte aligned and each `[f32; 8]` row is 32 bytes; the axes
-            // `kx, ky, kz` come from `ShearRay::new`'s tables, all < 3.
-            let ld = |v: usize, a: usize| unsafe { _mm256_load_ps(g.v[v].get_unchecked(a).as_ptr()) };
-            let mut px = [zero; 3];
-            let mut py = [zero; 3];
-            let mut pz = [zero; 3];
-            for v in 0..3 {
-                let az = _mm256_sub_ps(ld(v, kz), oz);
-                px[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, kx), ox), _mm256_mul_ps(sx, az));
-                py[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, ky), oy), _mm256_mul_ps(sy, az));
-                pz[v] = _mm256_mul_ps(sz, az);
-            }
-            let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
-            let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
-            let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
-            let eq0 = |x| _mm256_cmp_ps::<_CMP_EQ_OQ>(x, zero);
-            zany = _mm256_or_ps(zany, _mm256_or_ps(_mm256_or_ps(eq0(u), eq0(v)), eq0(w)));
+            let GroupAvx { zero: zv, mixed, t, v, w, inv } = group_avx(g, &ar);
+            zany = _mm256_or_ps(zany, zv);
             // Only used when no edge function is zero (else the loop decides): `u, v, w` are then
             // non-zero or NaN, so "mixed signs" is "sign bits differ" (sign bit of the result).
-            let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
-            let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
-            let tt = _mm256_add_ps(
-                _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
-                _mm256_mul_ps(w, pz[2]),
-            );
-            let inv = _mm256_div_ps(one, det);
-            let t = _mm256_mul_ps(tt, inv);
             // `TriRay` also asks `det != 0` and `(tt > 0) == (det > 0)`: with non-zero `u, v, w`
             // of one sign, `det` is non-zero with that sign, and `t = tt · (1/det) > 0` needs
             // `tt` non-zero with the sign of `det`. `t < tmax` is applied to the minimum below.
