@@ -953,15 +953,19 @@ pub fn delight(
                     .map(|(e, &c)| e.map(|x| (x / c.max(1.0 / 16.0) as f64) as f32))
                     .collect();
                 let ei_r = smooth_in_charts(&ei_raw, &o.atlas, r);
-                // direct consistency (means over covered texels)
+                // direct consistency (means over covered texels; first pass only: the later
+                // passes deposit no first hits)
                 let (mut a, mut b) = (0f64, 0f64);
-                for i in 0..o.ed.len() {
-                    if o.atlas.texel_tri[i] != NO_TRI && !m.direct.is_empty() {
-                        a += luminance(m.direct[i].map(|x| x as f32)) as f64 / cov[i].max(1.0 / 16.0) as f64;
-                        b += luminance(o.ed[i]) as f64;
+                if !m.direct.is_empty() {
+                    for i in 0..o.ed.len() {
+                        if o.atlas.texel_tri[i] != NO_TRI {
+                            a += luminance(m.direct[i].map(|x| x as f32)) as f64
+                                / cov[i].max(1.0 / 16.0) as f64;
+                            b += luminance(o.ed[i]) as f64;
+                        }
                     }
                 }
-                let ratio = if b > 0.0 && !m.direct.is_empty() { a / b } else { f64::NAN };
+                let ratio = if b > 0.0 { a / b } else { f64::NAN };
                 // error map
                 let n = o.l.len();
                 let mut rel = vec![f32::NAN; n];

@@ -14,14 +14,13 @@
 //! `t` and the barycentrics with the same operations in the same order (Rust never contracts to
 //! FMA). Triangles are visited in index order and a lane takes a hit only if it is strictly
 //! closer, so ties keep the lowest index. A lane in which some edge function is exactly zero
-//! (for any triangle) is recomputed by the scalar [`super::TriRay`] loop with its f64 fallback,
-//! as the brute force does. Without AVX2 every lane takes that scalar loop.
+//! (for any triangle) is recomputed by [`super::BruteForce`] (the scalar test with its f64
+//! fallback). Without AVX2 every lane takes the brute force.
 //!
 //! Tests: unit tests below (random soups of 1–64 triangles, the Cornell box with rays leaving
 //! its surfaces, zero-edge rays through shared corners, inactive lanes, ties).
 
-use super::Hit;
-use super::triangle::TriRay;
+use super::{BruteForce, Hit};
 use crate::geometry::Ray;
 use crate::math::Vec3;
 
@@ -67,7 +66,8 @@ struct Corner([f32; 4]);
 #[derive(Clone, Debug)]
 pub struct PacketAccel {
     corners: Vec<[Corner; 3]>,
-    tris: Vec<[Vec3; 3]>,
+    /// The scalar test for lanes with a zero edge function and CPUs without AVX2.
+    brute: BruteForce,
 }
 
 impl PacketAccel {
@@ -75,17 +75,17 @@ impl PacketAccel {
     /// few dozen).
     pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
         let corners = tris.iter().map(|t| t.map(|p| Corner([p.x, p.y, p.z, 0.0]))).collect();
-        PacketAccel { corners, tris }
+        PacketAccel { corners, brute: BruteForce::new(tris) }
     }
 
     /// Number of triangles.
     pub fn len(&self) -> usize {
-        self.tris.len()
+        self.corners.len()
     }
 
     /// Whether there are no triangles.
     pub fn is_empty(&self) -> bool {
-        self.tris.is_empty()
+        self.corners.is_empty()
     }
 
     /// Closest hit of every lane with `0 < t < tmax` (`None` for misses and inactive lanes).
@@ -95,22 +95,7 @@ impl PacketAccel {
             // SAFETY: the CPU supports AVX2 (checked just above).
             return unsafe { self.intersect_avx2(rays) };
         }
-        std::array::from_fn(|l| self.scalar(&rays.ray(l)))
-    }
-
-    /// The brute-force loop for one ray (lowest index on ties).
-    fn scalar(&self, ray: &Ray) -> Option<Hit> {
-        // (an inactive lane, tmax ≤ 0, never hits: every hit needs 0 < t < tmax)
-        let tr = TriRay::new(ray);
-        let mut tmax = ray.tmax;
-        let mut best = None;
-        for (i, tri) in self.tris.iter().enumerate() {
-            if let Some((t, b1, b2)) = tr.intersect(tri, tmax) {
-                tmax = t;
-                best = Some(Hit { t, prim: i as u32, b1, b2 });
-            }
-        }
-        best
+        std::array::from_fn(|l| self.brute.intersect(&rays.ray(l)))
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -219,7 +204,7 @@ impl PacketAccel {
         std::array::from_fn(|l| {
             if zmask & (1 << l) != 0 {
                 // Rare: an exactly-zero edge function: the scalar test with its f64 recomputation.
-                self.scalar(&rays.ray(l))
+                self.brute.intersect(&rays.ray(l))
             } else if idx[l] >= 0 {
                 Some(Hit { t: ts[l], prim: idx[l] as u32, b1: b1[l], b2: b2[l] })
             } else {
@@ -232,7 +217,7 @@ impl PacketAccel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::{BruteForce, scenes};
+    use crate::accel::scenes;
     use crate::sampling::{Rng, square_to_cosine_hemisphere};
 
     fn check(tris: Vec<[Vec3; 3]>, rays: &[Ray]) {

@@ -530,25 +530,6 @@ mod tests {
         }
     }
 
-    /// The axis choice of `TriRay::new`, with its branches.
-    fn reference_shear(d: Vec3) -> ([usize; 3], f32, f32, f32) {
-        let a = d.abs();
-        let kz = if a.x > a.y {
-            if a.x > a.z { 0 } else { 2 }
-        } else if a.y > a.z {
-            1
-        } else {
-            2
-        };
-        let mut kx = if kz == 2 { 0 } else { kz + 1 };
-        let mut ky = if kx == 2 { 0 } else { kx + 1 };
-        if d[kz] < 0.0 {
-            std::mem::swap(&mut kx, &mut ky);
-        }
-        let sz = 1.0 / d[kz];
-        ([kx, ky, kz], d[kx] * sz, d[ky] * sz, sz)
-    }
-
     #[test]
     fn branch_free_axis_choice_matches_tri_ray() {
         let vals = [0.0f32, -0.0, 1.0, -1.0, 0.5, -0.5, 2.0, -2.0, 1e-30, -3e38, f32::INFINITY, f32::NAN];
@@ -558,7 +539,7 @@ mod tests {
                 for &z in &vals {
                     let d = Vec3::new(x, y, z);
                     let r = ShearRay::new(&Ray::new(Vec3::ZERO, d));
-                    let (k, sx, sy, sz) = reference_shear(d);
+                    let (k, sx, sy, sz) = crate::accel::triangle::shear_axes(d);
                     assert_eq!(r.k, k, "{d}");
                     assert!(same(r.sx, sx) && same(r.sy, sy) && same(r.sz, sz), "{d}");
                 }

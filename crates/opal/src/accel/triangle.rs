@@ -38,6 +38,28 @@
 use crate::geometry::Ray;
 use crate::math::Vec3;
 
+/// The axis permutation and shear of the watertight test for direction `d`: `([kx, ky, kz], S_x,
+/// S_y, S_z)` with kz the dominant axis, kx, ky the next two (swapped when `d_kz < 0` to keep the
+/// winding, hence the sign of det, consistent) and `S = (d_kx, d_ky, 1) / d_kz`.
+#[inline]
+pub(crate) fn shear_axes(d: Vec3) -> ([usize; 3], f32, f32, f32) {
+    let a = d.abs();
+    let kz = if a.x > a.y {
+        if a.x > a.z { 0 } else { 2 }
+    } else if a.y > a.z {
+        1
+    } else {
+        2
+    };
+    let mut kx = if kz == 2 { 0 } else { kz + 1 };
+    let mut ky = if kx == 2 { 0 } else { kx + 1 };
+    if d[kz] < 0.0 {
+        std::mem::swap(&mut kx, &mut ky);
+    }
+    let sz = 1.0 / d[kz];
+    ([kx, ky, kz], d[kx] * sz, d[ky] * sz, sz)
+}
+
 /// A ray prepared for the watertight test: permutation of the axes and shear constants.
 #[derive(Clone, Copy, Debug)]
 pub struct TriRay {
@@ -56,29 +78,9 @@ impl TriRay {
     /// Precomputes the shear for `ray` (direction need not be normalised).
     #[inline]
     pub fn new(ray: &Ray) -> Self {
-        let d = ray.d;
-        let a = d.abs();
-        let kz = if a.x > a.y {
-            if a.x > a.z { 0 } else { 2 }
-        } else if a.y > a.z {
-            1
-        } else {
-            2
-        };
-        let mut kx = if kz == 2 { 0 } else { kz + 1 };
-        let mut ky = if kx == 2 { 0 } else { kx + 1 };
-        // Keep the winding (and thus the sign of det) consistent.
-        if d[kz] < 0.0 {
-            std::mem::swap(&mut kx, &mut ky);
-        }
-        let sz = 1.0 / d[kz];
+        let ([kx, ky, kz], sx, sy, sz) = shear_axes(ray.d);
         let e = |k: usize| Vec3::AXES[k];
-        TriRay {
-            o: ray.o,
-            rx: e(kx) - (d[kx] * sz) * e(kz),
-            ry: e(ky) - (d[ky] * sz) * e(kz),
-            rz: sz * e(kz),
-        }
+        TriRay { o: ray.o, rx: e(kx) - sx * e(kz), ry: e(ky) - sy * e(kz), rz: sz * e(kz) }
     }
 
     /// Intersects one triangle; returns `(t, b1, b2)` for a hit with `0 < t < tmax`

@@ -362,18 +362,7 @@ fn trace_fixed(
     let wavefront = engine != Engine::Scalar && prims.iter().all(|p| matches!(p.mat, Mat::Diffuse { .. }));
     let kernel = scatter_kernel();
     // Small scenes: the wavefront's eight rays are traced together, one per SIMD lane.
-    let packet = (wavefront && engine == Engine::Auto && fp.factor.len() <= crate::accel::tiny::TINY_MAX)
-        .then(|| {
-            let tris = scene
-                .shapes
-                .iter()
-                .flat_map(|sh| {
-                    let m = &sh.mesh;
-                    m.indices.iter().map(move |idx| idx.map(|i| m.positions[i as usize]))
-                })
-                .collect();
-            PacketAccel::new(tris)
-        });
+    let packet = if wavefront && engine == Engine::Auto { scene.packet() } else { None };
     let results: Vec<(Acc, u64)> = (0..workers)
         .into_par_iter()
         .map(|_| {
@@ -387,7 +376,7 @@ fn trace_fixed(
                 let paths = b * batch..((b + 1) * batch).min(s.paths);
                 let mut ctx = PathCtx { scene, sampler, prims: &prims, sink: &mut sink, s, bad: &mut bad };
                 if wavefront {
-                    Wavefront::run(&mut ctx, &stream, paths, kernel, packet.as_ref());
+                    Wavefront::run(&mut ctx, &stream, paths, kernel, packet);
                 } else {
                     for i in paths {
                         trace_path(&mut ctx, stream.rng(i));
@@ -528,7 +517,20 @@ enum Weight<'a> {
     },
 }
 
-impl Weight<'_> {
+impl<'a> Weight<'a> {
+    /// The weight of a Lambertian vertex of triangle `pr` at `uv` with `ratio = |cos θi| / pdf`;
+    /// a bitmap's texels are prefetched for the lookup in [`Weight::get`].
+    #[inline]
+    fn lambert(pr: &Prim<'a>, tex: &'a TextureDesc, uv: Vec2, ratio: f32) -> Self {
+        match pr.kd_pi {
+            Some(kd_pi) => Weight::LambertConst { kd_pi, ratio },
+            None => {
+                prefetch_texture(tex, uv);
+                Weight::Lambert { tex, uv, ratio }
+            }
+        }
+    }
+
     #[inline]
     fn get(self) -> Spectrum {
         match self {
@@ -716,14 +718,7 @@ fn trace_path(ctx: &mut PathCtx, rng: Rng) {
                 if pdf <= 0.0 {
                     break;
                 }
-                let ratio = wi.z.abs() / pdf;
-                st.pending = Some(match pr.kd_pi {
-                    Some(kd_pi) => Weight::LambertConst { kd_pi, ratio },
-                    None => {
-                        prefetch_texture(tex, v.uv);
-                        Weight::Lambert { tex, uv: v.uv, ratio }
-                    }
-                });
+                st.pending = Some(Weight::lambert(pr, tex, v.uv, wi.z.abs() / pdf));
                 st.ray = super::spawn_ray(p, pr.ng, frame.to_world(wi));
             }
             Mat::Generic => {
@@ -743,12 +738,11 @@ fn trace_path(ctx: &mut PathCtx, rng: Rng) {
 /// Paths advanced together by [`Wavefront`] (one per SIMD lane).
 const W: usize = 8;
 
-/// Inputs of the Lambertian scattering of [`W`] vertices, one per lane (structure of arrays).
+/// Inputs of the Lambertian scattering of [`W`] vertices, one per lane (structure of arrays),
+/// besides the rays that reached them.
 #[derive(Clone, Copy, Default)]
 struct ScatterIn {
-    /// Ray origin, direction and hit distance (the vertex is `o + d·t`).
-    o: [[f32; W]; 3],
-    d: [[f32; W]; 3],
+    /// Hit distance along the lane's ray (the vertex is `o + d·t`).
     t: [f32; W],
     /// Unit geometric normal and its re-normalised copy for the ray offset.
     ng: [[f32; W]; 3],
@@ -776,7 +770,7 @@ struct ScatterOut {
 /// `fastmath::sincos_2pi`, [`super::offset_ray_origin`]), with selects for branches, hence the
 /// same bits in every lane (no fused multiply-add is ever formed).
 #[inline(always)]
-fn scatter_lanes(i: &ScatterIn) -> ScatterOut {
+fn scatter_lanes(rays: &RayPacket, i: &ScatterIn) -> ScatterOut {
     use crate::fastmath::wide::{self, F, M};
     type V = [F<W>; 3];
     let ld = |a: &[[f32; W]; 3]| -> V { [F(a[0]), F(a[1]), F(a[2])] };
@@ -784,7 +778,7 @@ fn scatter_lanes(i: &ScatterIn) -> ScatterOut {
     let sel =
         |m: M<W>, a: V, b: V| -> V { [m.select(a[0], b[0]), m.select(a[1], b[1]), m.select(a[2], b[2])] };
     let zero = F::<W>::splat(0.0);
-    let (o, d, t) = (ld(&i.o), ld(&i.d), F(i.t));
+    let (o, d, t) = (ld(&rays.o), ld(&rays.d), F(i.t));
     let (ng, ng_off) = (ld(&i.ng), ld(&i.ng_off));
     let (b0, b1, b2) = (F(i.b[0]), F(i.b[1]), F(i.b[2]));
     let p: V = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
@@ -836,18 +830,21 @@ fn scatter_lanes(i: &ScatterIn) -> ScatterOut {
     out
 }
 
+/// A scattering kernel: [`scatter_lanes`] compiled for some instruction set.
+type ScatterKernel = fn(&RayPacket, &ScatterIn) -> ScatterOut;
+
 /// The scattering kernel for this CPU (AVX2 when available, else the portable lane loops; same
 /// bits either way).
-fn scatter_kernel() -> fn(&ScatterIn) -> ScatterOut {
+fn scatter_kernel() -> ScatterKernel {
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx2")]
-        fn avx2(i: &ScatterIn) -> ScatterOut {
-            scatter_lanes(i)
+        fn avx2(rays: &RayPacket, i: &ScatterIn) -> ScatterOut {
+            scatter_lanes(rays, i)
         }
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above).
-            return |i| unsafe { avx2(i) };
+            return |rays, i| unsafe { avx2(rays, i) };
         }
     }
     scatter_lanes
@@ -869,7 +866,7 @@ impl Wavefront {
         ctx: &mut PathCtx<'a, '_>,
         stream: &RngStream,
         paths: std::ops::Range<u64>,
-        kernel: fn(&ScatterIn) -> ScatterOut,
+        kernel: ScatterKernel,
         packet: Option<&PacketAccel>,
     ) {
         let mut lanes: [Option<PathState<'a>>; W] = std::array::from_fn(|_| None);
@@ -885,24 +882,24 @@ impl Wavefront {
             refill(lane, &mut next);
         }
         let mut inp = ScatterIn::default();
-        let mut texs: [Option<(&'a TextureDesc, Vec2, Option<Spectrum>)>; W] = [None; W];
+        // per scattered lane: its triangle, texture and uv (for the pending weight)
+        let mut scattered: [Option<(&Prim<'a>, &'a TextureDesc, Vec2)>; W] = [None; W];
         while lanes.iter().any(|l| l.is_some()) {
-            let hits: [Option<Hit>; W] = match packet {
-                Some(pa) => {
-                    let mut rays = RayPacket::default();
-                    for (l, lane) in lanes.iter().enumerate() {
-                        if let Some(st) = lane {
-                            rays.set(l, &st.ray);
-                        }
-                    }
-                    pa.intersect(&rays)
+            // the lanes' rays (inactive lanes: tmax 0), traced and then read by the kernel
+            let mut rays = RayPacket::default();
+            for (l, lane) in lanes.iter().enumerate() {
+                if let Some(st) = lane {
+                    rays.set(l, &st.ray);
                 }
+            }
+            let hits: [Option<Hit>; W] = match packet {
+                Some(pa) => pa.intersect(&rays),
                 None => {
                     std::array::from_fn(|l| lanes[l].as_ref().and_then(|st| scene.intersect_hit(&st.ray)))
                 }
             };
             for l in 0..W {
-                texs[l] = None;
+                scattered[l] = None;
                 let Some(st) = lanes[l].as_mut() else { continue };
                 let Some(v) = vertex(ctx, st, hits[l]) else {
                     lanes[l] = None;
@@ -916,8 +913,6 @@ impl Wavefront {
                 let _uc = st.rng.next_f32();
                 let u = st.rng.next_2d();
                 for c in 0..3 {
-                    inp.o[c][l] = st.ray.o[c];
-                    inp.d[c][l] = st.ray.d[c];
                     inp.ng[c][l] = pr.ng[c];
                     inp.ng_off[c][l] = pr.ng_off[c];
                 }
@@ -939,11 +934,11 @@ impl Wavefront {
                 inp.b[2][l] = h.b2;
                 inp.u[0][l] = u.x;
                 inp.u[1][l] = u.y;
-                texs[l] = Some((tex, v.uv, pr.kd_pi));
+                scattered[l] = Some((pr, tex, v.uv));
             }
-            let out = kernel(&inp);
+            let out = kernel(&rays, &inp);
             for l in 0..W {
-                let Some((tex, uv, kd_pi)) = texs[l] else {
+                let Some((pr, tex, uv)) = scattered[l] else {
                     refill(&mut lanes[l], &mut next);
                     continue;
                 };
@@ -953,14 +948,7 @@ impl Wavefront {
                     refill(&mut lanes[l], &mut next);
                     continue;
                 }
-                let ratio = out.ratio[l];
-                st.pending = Some(match kd_pi {
-                    Some(kd_pi) => Weight::LambertConst { kd_pi, ratio },
-                    None => {
-                        prefetch_texture(tex, uv);
-                        Weight::Lambert { tex, uv, ratio }
-                    }
-                });
+                st.pending = Some(Weight::lambert(pr, tex, uv, out.ratio[l]));
                 st.ray = Ray::new(
                     Vec3::new(out.o[0][l], out.o[1][l], out.o[2][l]),
                     Vec3::new(out.d[0][l], out.d[1][l], out.d[2][l]),
@@ -1078,6 +1066,10 @@ mod tests {
         }
     }
 
+    fn shape(id: &str, mesh: TriangleMesh, bsdf: BsdfDesc, emitter: Option<AreaEmitterDesc>) -> ShapeDesc {
+        ShapeDesc { id: id.into(), mesh, bsdf, emitter, origin: None }
+    }
+
     fn diffuse(a: f32) -> BsdfDesc {
         BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(Spectrum::splat(a)) }
     }
@@ -1092,13 +1084,7 @@ mod tests {
         let h = 1.0;
         let height = 1.0;
         let desc = SceneDesc {
-            shapes: vec![ShapeDesc {
-                id: "floor".into(),
-                mesh: floor_quad(h),
-                bsdf: diffuse(0.0),
-                emitter: None,
-                origin: None,
-            }],
+            shapes: vec![shape("floor", floor_quad(h), diffuse(0.0), None)],
             emitters: vec![EmitterDesc::Point {
                 position: Vec3::new(0.0, height, 0.0),
                 intensity: Spectrum::rgb(1.0, 2.0, 3.0),
@@ -1162,20 +1148,8 @@ mod tests {
         assert!(n.y < 0.0, "light faces down");
         let desc = SceneDesc {
             shapes: vec![
-                ShapeDesc {
-                    id: "floor".into(),
-                    mesh: floor_quad(1.0),
-                    bsdf: diffuse(0.0),
-                    emitter: None,
-                    origin: None,
-                },
-                ShapeDesc {
-                    id: "light".into(),
-                    mesh: light,
-                    bsdf: diffuse(0.0),
-                    emitter: Some(AreaEmitterDesc { radiance: Spectrum::splat(le) }),
-                    origin: None,
-                },
+                shape("floor", floor_quad(1.0), diffuse(0.0), None),
+                shape("light", light, diffuse(0.0), Some(AreaEmitterDesc { radiance: Spectrum::splat(le) })),
             ],
             ..Default::default()
         };
@@ -1237,13 +1211,12 @@ mod tests {
         let le = 1.0f32;
         let inner = inward_box();
         let desc = SceneDesc {
-            shapes: vec![ShapeDesc {
-                id: "box".into(),
-                mesh: inner.clone(),
-                bsdf: diffuse(rho),
-                emitter: Some(AreaEmitterDesc { radiance: Spectrum::splat(le) }),
-                origin: None,
-            }],
+            shapes: vec![shape(
+                "box",
+                inner.clone(),
+                diffuse(rho),
+                Some(AreaEmitterDesc { radiance: Spectrum::splat(le) }),
+            )],
             ..Default::default()
         };
         let scene = Scene::build(&desc).unwrap();
@@ -1353,8 +1326,6 @@ mod tests {
             indices: vec![[0, 1, 2], [0, 2, 3]],
         };
         let v = Vec3::new;
-        let shape =
-            |id: &str, mesh, bsdf, emitter| ShapeDesc { id: id.into(), mesh, bsdf, emitter, origin: None };
         let desc = SceneDesc {
             shapes: vec![
                 shape("floor", floor_quad(1.0), BsdfDesc::Diffuse { reflectance: tex }, None),
@@ -1438,13 +1409,12 @@ mod tests {
         // result of the normal scale.
         let inner = inward_box();
         let desc = SceneDesc {
-            shapes: vec![ShapeDesc {
-                id: "box".into(),
-                mesh: inner.clone(),
-                bsdf: diffuse(0.5),
-                emitter: Some(AreaEmitterDesc { radiance: Spectrum::splat(1.0) }),
-                origin: None,
-            }],
+            shapes: vec![shape(
+                "box",
+                inner.clone(),
+                diffuse(0.5),
+                Some(AreaEmitterDesc { radiance: Spectrum::splat(1.0) }),
+            )],
             ..Default::default()
         };
         let scene = Scene::build(&desc).unwrap();
@@ -1515,20 +1485,13 @@ mod tests {
         };
         let desc = SceneDesc {
             shapes: vec![
-                ShapeDesc {
-                    id: "box".into(),
-                    mesh: inner.clone(),
-                    bsdf: diffuse(0.6),
-                    emitter: None,
-                    origin: None,
-                },
-                ShapeDesc {
-                    id: "light".into(),
-                    mesh: light,
-                    bsdf: diffuse(0.0),
-                    emitter: Some(AreaEmitterDesc { radiance: Spectrum::rgb(1.0, 2.0, 3.0) }),
-                    origin: None,
-                },
+                shape("box", inner.clone(), diffuse(0.6), None),
+                shape(
+                    "light",
+                    light,
+                    diffuse(0.0),
+                    Some(AreaEmitterDesc { radiance: Spectrum::rgb(1.0, 2.0, 3.0) }),
+                ),
             ],
             ..Default::default()
         };

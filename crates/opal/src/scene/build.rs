@@ -3,6 +3,7 @@
 //! structure and the light sampler.
 
 use super::desc::{BsdfDesc, EmitterDesc, IntegratorDesc, SceneDesc, TextureDesc};
+use crate::accel::packet::PacketAccel;
 use crate::accel::{Bvh, Hit, TinyAccel};
 use crate::bsdf::{Bxdfs, Lambert};
 use crate::camera::Camera;
@@ -65,6 +66,8 @@ pub struct Scene {
     accel: Accel,
     /// Flat SIMD structure used instead of `accel` for tiny scenes (identical hits).
     tiny: Option<TinyAccel>,
+    /// Eight rays at once, for tiny scenes (identical hits; see [`Scene::packet`]).
+    packet: Option<PacketAccel>,
     prim_shape: Vec<u32>,
     prim_light: Vec<u32>,
     light_sampler: Option<LightSampler>,
@@ -180,6 +183,7 @@ impl Scene {
         }
         let light_sampler = LightSampler::new(&lights);
         let tiny = (tris.len() <= crate::accel::tiny::TINY_MAX).then(|| TinyAccel::new(tris.clone()));
+        let packet = tiny.is_some().then(|| PacketAccel::new(tris.clone()));
         let accel = Accel::new(tris);
         Ok(Scene {
             shapes,
@@ -189,6 +193,7 @@ impl Scene {
             warnings: Vec::new(),
             accel,
             tiny,
+            packet,
             prim_shape,
             prim_light,
             light_sampler,
@@ -214,6 +219,12 @@ impl Scene {
             Some(t) => t.intersect(ray),
             None => self.accel.intersect(ray),
         }
+    }
+
+    /// Closest hits of eight rays at once (triangle indices as in [`Scene::intersect_hit`]), for
+    /// scenes of at most [`crate::accel::tiny::TINY_MAX`] triangles; `None` for larger scenes.
+    pub fn packet(&self) -> Option<&PacketAccel> {
+        self.packet.as_ref()
     }
 
     /// Whether anything blocks the ray before `ray.tmax`.
