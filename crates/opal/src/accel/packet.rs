@@ -90,17 +90,30 @@ impl PacketAccel {
 
     /// Closest hit of every lane with `0 < t < tmax` (`None` for misses and inactive lanes).
     pub fn intersect(&self, rays: &RayPacket) -> [Option<Hit>; PACKET] {
+        let h = self.intersect_lanes(rays);
+        std::array::from_fn(|l| h.hit(l))
+    }
+
+    /// [`PacketAccel::intersect`] as a structure of arrays (`prim < 0`: no hit).
+    #[inline]
+    pub fn intersect_lanes(&self, rays: &RayPacket) -> PacketHits {
         #[cfg(target_arch = "x86_64")]
         if std::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above).
             return unsafe { self.intersect_avx2(rays) };
         }
-        std::array::from_fn(|l| self.brute.intersect(&rays.ray(l)))
+        let mut h = PacketHits::NONE;
+        for l in 0..PACKET {
+            h.set(l, self.brute.intersect(&rays.ray(l)));
+        }
+        h
     }
 
+    /// [`PacketAccel::intersect_lanes`] with AVX2 (callers compiled with AVX2 may inline it).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn intersect_avx2(&self, rays: &RayPacket) -> [Option<Hit>; PACKET] {
+    #[inline]
+    pub(crate) fn intersect_avx2(&self, rays: &RayPacket) -> PacketHits {
         use std::arch::x86_64::*;
         // Per lane, branch-free: the axis choice and shear of `TriRay::new`, except that kx, ky
         // are always (kz + 1, kz + 2) mod 3: `TriRay` swaps them when d_kz < 0, which negates u,
@@ -189,28 +202,63 @@ impl PacketAccel {
                 take,
             ));
         }
-        let mut ts = [0.0f32; PACKET];
-        let mut b1 = [0.0f32; PACKET];
-        let mut b2 = [0.0f32; PACKET];
-        let mut idx = [0i32; PACKET];
+        let mut h = PacketHits::NONE;
         // SAFETY: as above.
         unsafe {
-            _mm256_storeu_ps(ts.as_mut_ptr(), best_t);
-            _mm256_storeu_ps(b1.as_mut_ptr(), best_b1);
-            _mm256_storeu_ps(b2.as_mut_ptr(), best_b2);
-            _mm256_storeu_si256(idx.as_mut_ptr().cast(), best_i);
+            _mm256_storeu_ps(h.t.as_mut_ptr(), best_t);
+            _mm256_storeu_ps(h.b1.as_mut_ptr(), best_b1);
+            _mm256_storeu_ps(h.b2.as_mut_ptr(), best_b2);
+            _mm256_storeu_si256(h.prim.as_mut_ptr().cast(), best_i);
         }
-        let zmask = _mm256_movemask_ps(zany) as u32;
-        std::array::from_fn(|l| {
-            if zmask & (1 << l) != 0 {
-                // Rare: an exactly-zero edge function: the scalar test with its f64 recomputation.
-                self.brute.intersect(&rays.ray(l))
-            } else if idx[l] >= 0 {
-                Some(Hit { t: ts[l], prim: idx[l] as u32, b1: b1[l], b2: b2[l] })
-            } else {
-                None
+        let mut zmask = _mm256_movemask_ps(zany) as u32;
+        while zmask != 0 {
+            // Rare: an exactly-zero edge function: the scalar test with its f64 recomputation.
+            let l = zmask.trailing_zeros() as usize;
+            zmask &= zmask - 1;
+            h.set(l, self.brute.intersect(&rays.ray(l)));
+        }
+        h
+    }
+}
+
+/// Closest hits of a [`RayPacket`], structure of arrays: lane `l` hit triangle `prim[l]` at
+/// `t[l]` with barycentrics `b1[l]`, `b2[l]`; `prim[l] < 0` = no hit (the other fields are then
+/// meaningless).
+#[derive(Clone, Copy, Debug)]
+pub struct PacketHits {
+    /// Ray parameters.
+    pub t: [f32; PACKET],
+    /// Triangle indices, −1 for no hit.
+    pub prim: [i32; PACKET],
+    /// Barycentric coordinates of the second corner.
+    pub b1: [f32; PACKET],
+    /// Barycentric coordinates of the third corner.
+    pub b2: [f32; PACKET],
+}
+
+impl PacketHits {
+    /// No hit in any lane.
+    pub const NONE: PacketHits =
+        PacketHits { t: [0.0; PACKET], prim: [-1; PACKET], b1: [0.0; PACKET], b2: [0.0; PACKET] };
+
+    /// The hit of lane `l`.
+    #[inline]
+    pub fn hit(&self, l: usize) -> Option<Hit> {
+        (self.prim[l] >= 0).then(|| Hit { t: self.t[l], prim: self.prim[l] as u32, b1: self.b1[l], b2: self.b2[l] })
+    }
+
+    /// Sets lane `l` to `hit`.
+    #[inline]
+    pub fn set(&mut self, l: usize, hit: Option<Hit>) {
+        match hit {
+            Some(h) => {
+                self.t[l] = h.t;
+                self.prim[l] = h.prim as i32;
+                self.b1[l] = h.b1;
+                self.b2[l] = h.b2;
             }
-        })
+            None => self.prim[l] = -1,
+        }
     }
 }
 

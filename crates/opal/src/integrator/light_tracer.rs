@@ -60,7 +60,7 @@
 //! indirect map bitwise unchanged.
 
 use crate::accel::Hit;
-use crate::accel::packet::{PacketAccel, RayPacket};
+use crate::accel::packet::{PacketAccel, PacketHits, RayPacket};
 use crate::bsdf::{Bxdf, TransportMode};
 use crate::geometry::Ray;
 use crate::math::{Frame, INV_PI, Vec2, Vec3};
@@ -359,10 +359,9 @@ fn trace_fixed(
     let stream = RngStream::new(s.seed, RNG_STREAM);
     // Scenes whose every triangle is Lambertian advance eight paths at a time (same paths,
     // same numbers, same bits as one at a time: see `Wavefront`).
-    let wavefront = engine != Engine::Scalar && prims.iter().all(|p| matches!(p.mat, Mat::Diffuse { .. }));
-    let kernel = scatter_kernel();
+    let wavefront = if engine == Engine::Scalar || !Wavefront::available() { None } else { LambertTable::new(&prims) };
     // Small scenes: the wavefront's eight rays are traced together, one per SIMD lane.
-    let packet = if wavefront && engine == Engine::Auto { scene.packet() } else { None };
+    let packet = if wavefront.is_some() && engine == Engine::Auto { scene.packet() } else { None };
     let results: Vec<(Acc, u64)> = (0..workers)
         .into_par_iter()
         .map(|_| {
@@ -375,8 +374,8 @@ fn trace_fixed(
                 }
                 let paths = b * batch..((b + 1) * batch).min(s.paths);
                 let mut ctx = PathCtx { scene, sampler, prims: &prims, sink: &mut sink, s, bad: &mut bad };
-                if wavefront {
-                    Wavefront::run(&mut ctx, &stream, paths, kernel, packet);
+                if let Some(tab) = &wavefront {
+                    Wavefront::run(&mut ctx, tab, &stream, paths, packet);
                 } else {
                     for i in paths {
                         trace_path(&mut ctx, stream.rng(i));
@@ -650,31 +649,38 @@ fn vertex<'p, 'a>(
     let pr = &prims[h.prim as usize];
     let b0 = 1.0 - h.b1 - h.b2;
     let uv = pr.uv[0] * b0 + pr.uv[1] * h.b1 + pr.uv[2] * h.b2;
-    let front = (-st.ray.d).dot(pr.ng) > 0.0;
-    if front && pr.factor > 0.0 && (st.depth > 1 || s.direct) {
-        let (w, hgt) = (pr.width as usize, pr.height as usize);
-        let x = ((uv.x * w as f32) as i64).clamp(0, w as i64 - 1) as usize;
-        let y = ((uv.y * hgt as f32) as i64).clamp(0, hgt as i64 - 1) as usize;
-        let e = st.beta.to_f64();
-        if e.iter().all(|v| v.is_finite()) {
-            let shape = pr.shape as usize;
-            let index = 3 * (y * w + x);
-            let direct = st.depth == 1;
-            // round half away from zero (`as` saturates: an absurd deposit then shows in
-            // the overflow check)
-            let value = e.map(|v| {
-                let q = v * pr.factor;
-                (q + 0.5f64.copysign(q)) as i64
-            });
-            ctx.sink.push(Pending { shape, index, direct, value });
-        } else {
-            *ctx.bad += 1;
-        }
+    if (-st.ray.d).dot(pr.ng) > 0.0 {
+        deposit(ctx.sink, ctx.bad, s, pr, uv, st.beta, st.depth);
     }
     if s.max_depth >= 0 && st.depth >= s.max_depth {
         return None;
     }
     Some(Vertex { pr, hit: h, uv, b0 })
+}
+
+/// The deposit of a path of weight `beta` reaching the front side of triangle `pr` at `uv` as
+/// its vertex number `depth` (none for triangles without a map and, unless `s.direct`, for
+/// first hits); a non-finite weight is counted in `bad` instead.
+#[inline(always)]
+fn deposit(sink: &mut Sink, bad: &mut u64, s: &LightTraceSettings, pr: &Prim, uv: Vec2, beta: Spectrum, depth: i32) {
+    if !(pr.factor > 0.0 && (depth > 1 || s.direct)) {
+        return;
+    }
+    let (w, hgt) = (pr.width as usize, pr.height as usize);
+    let x = ((uv.x * w as f32) as i64).clamp(0, w as i64 - 1) as usize;
+    let y = ((uv.y * hgt as f32) as i64).clamp(0, hgt as i64 - 1) as usize;
+    let e = beta.to_f64();
+    if e.iter().all(|v| v.is_finite()) {
+        // round half away from zero (`as` saturates: an absurd deposit then shows in the
+        // overflow check)
+        let value = e.map(|v| {
+            let q = v * pr.factor;
+            (q + 0.5f64.copysign(q)) as i64
+        });
+        sink.push(Pending { shape: pr.shape as usize, index: 3 * (y * w + x), direct: depth == 1, value });
+    } else {
+        *bad += 1;
+    }
 }
 
 /// Traces one light path (one vertex at a time; any material).
@@ -830,132 +836,447 @@ fn scatter_lanes(rays: &RayPacket, i: &ScatterIn) -> ScatterOut {
     out
 }
 
-/// A scattering kernel: [`scatter_lanes`] compiled for some instruction set.
-type ScatterKernel = fn(&RayPacket, &ScatterIn) -> ScatterOut;
-
-/// The scattering kernel for this CPU (AVX2 when available, else the portable lane loops; same
-/// bits either way).
-fn scatter_kernel() -> ScatterKernel {
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx2")]
-        fn avx2(rays: &RayPacket, i: &ScatterIn) -> ScatterOut {
-            scatter_lanes(rays, i)
-        }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked just above).
-            return |rays, i| unsafe { avx2(rays, i) };
-        }
-    }
-    scatter_lanes
-}
-
 /// [`W`] light paths advanced together (scenes whose materials are all Lambertian).
 ///
-/// Each lane holds one path; a step traces every lane's ray, runs [`vertex`] (weights,
-/// roulette, deposits) lane by lane, scatters all lanes at once with [`scatter_lanes`], and
-/// refills the lanes whose path ended with the next path of the batch. A path draws its
-/// numbers from its own generator in the same order as [`trace_path`] and the kernel computes
-/// the same bits, so each path is exactly the path `trace_path` would trace: only the order of
-/// the deposits changes, which integer sums ignore. The eight independent paths per step give
-/// the CPU independent work where one path is a chain of dependent operations.
+/// Each lane holds one path; the whole state is kept as a structure of arrays ([`Lanes`]). A
+/// step traces every lane's ray, applies the pending albedo weights and the roulette, gathers
+/// the hit triangles' data, deposits, draws the direction samples, scatters all lanes at once
+/// with [`scatter_lanes`] (which writes the next rays in place), and refills the lanes whose path
+/// ended with the next path of the batch. The per-lane arithmetic is written as loops over the
+/// lanes with selects instead of branches, so the compiler vectorises it and no unpredictable
+/// branch (alive or dead, bitmap or constant albedo, roulette) is taken per lane; the parts that
+/// only some lanes need (bitmap lookups, roulette numbers, deposits, new paths) loop over the
+/// set bits of a lane mask. A path draws its numbers from its own generator in the same order
+/// as [`trace_path`] and every value is computed with the same operations, so each path is
+/// exactly the path `trace_path` would trace: only the order of the deposits changes, which
+/// integer sums ignore (test: identical sums for the three engines).
 struct Wavefront;
 
+/// Per-triangle data of the wavefront (see [`Prim`]), one row of 32 floats per triangle so a
+/// lane's value is one load at a fixed offset (fields: the `ROW_*` constants).
+#[derive(Clone, Copy)]
+#[repr(C, align(64))]
+struct Row([f32; 32]);
+
+/// Offsets in a [`Row`]: unit geometric normal, its offset copy, corner uvs `(u0, v0, u1, …)`,
+/// `kd_pi` (ρ/π of a constant reflectance, zero for a bitmap), corner normals (9, zero without
+/// normals), and the flags (bits of a `u32`: all set = true) "has normals", "two-sided",
+/// "bitmap reflectance".
+const ROW_NG: usize = 0;
+const ROW_NG_OFF: usize = 3;
+const ROW_UV: usize = 6;
+const ROW_KD: usize = 12;
+const ROW_N: usize = 15;
+const ROW_HAS_N: usize = 24;
+const ROW_TWO_SIDED: usize = 25;
+const ROW_BITMAP: usize = 26;
+
+/// The wavefront's triangle table: rows, the bitmap of each triangle with a bitmap
+/// reflectance, and whether any triangle has corner normals.
+struct LambertTable<'a> {
+    rows: Vec<Row>,
+    tex: Vec<Option<&'a TextureDesc>>,
+    any_normals: bool,
+}
+
+impl<'a> LambertTable<'a> {
+    /// `None` unless every triangle is Lambertian.
+    fn new(prims: &[Prim<'a>]) -> Option<LambertTable<'a>> {
+        let flag = |b: bool| f32::from_bits(if b { u32::MAX } else { 0 });
+        let mut rows = Vec::with_capacity(prims.len());
+        let mut tex = Vec::with_capacity(prims.len());
+        for p in prims {
+            let Mat::Diffuse { tex: t, two_sided } = p.mat else { return None };
+            let mut r = [0.0f32; 32];
+            for c in 0..3 {
+                r[ROW_NG + c] = p.ng[c];
+                r[ROW_NG_OFF + c] = p.ng_off[c];
+                r[ROW_KD + c] = p.kd_pi.map_or(0.0, |k| k[c]);
+                for k in 0..3 {
+                    r[ROW_N + 3 * k + c] = p.normals.map_or(0.0, |n| n[k][c]);
+                }
+            }
+            for k in 0..3 {
+                r[ROW_UV + 2 * k] = p.uv[k].x;
+                r[ROW_UV + 2 * k + 1] = p.uv[k].y;
+            }
+            r[ROW_HAS_N] = flag(p.normals.is_some());
+            r[ROW_TWO_SIDED] = flag(two_sided);
+            r[ROW_BITMAP] = flag(p.kd_pi.is_none());
+            rows.push(Row(r));
+            tex.push(p.kd_pi.is_none().then_some(t));
+        }
+        let any_normals = prims.iter().any(|p| p.normals.is_some());
+        Some(LambertTable { rows, tex, any_normals })
+    }
+}
+
+/// The state of the [`W`] lanes of a [`Wavefront`] (structure of arrays): lane `l` holds a path
+/// iff bit `l` of `active` is set.
+struct Lanes<'a> {
+    /// The rays to trace next (inactive lanes: `tmax = 0`, never hit).
+    rays: RayPacket,
+    rng: [Rng; W],
+    /// Path weights β.
+    beta: [[f32; W]; 3],
+    /// `max_c β_c` at the light (the roulette's reference, see [`survival`]).
+    b0: [f32; W],
+    /// Vertices so far.
+    depth: [i32; W],
+    /// Lanes whose last vertex's weight `kd_pi · ratio` is still to be applied (after the
+    /// trace, so a bitmap lookup's cache miss overlaps it); lanes in `bitmap` look `kd_pi` up
+    /// in `tex` at `uv` first.
+    pending: u32,
+    bitmap: u32,
+    ratio: [f32; W],
+    kd_pi: [[f32; W]; 3],
+    tex: [Option<&'a TextureDesc>; W],
+    uv: [Vec2; W],
+    active: u32,
+}
+
+/// Indices of the set bits of `m`, lowest first.
+#[inline(always)]
+fn lanes_of(mut m: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (m != 0).then(|| {
+            let l = m.trailing_zeros() as usize;
+            m &= m - 1;
+            l
+        })
+    })
+}
+
+impl<'a> Lanes<'a> {
+    /// Puts a new path into lane `l`.
+    #[inline]
+    fn start(&mut self, l: usize, st: PathState<'a>) {
+        self.rays.set(l, &st.ray);
+        for c in 0..3 {
+            self.beta[c][l] = st.beta[c];
+        }
+        self.b0[l] = st.b0;
+        self.depth[l] = 0;
+        self.rng[l] = st.rng;
+        self.active |= 1 << l;
+        self.pending &= !(1 << l);
+        self.bitmap &= !(1 << l);
+    }
+}
+
+/// What [`avx::vertices`] computes besides the kernel's inputs.
+#[derive(Clone, Copy)]
+struct VertexLanes {
+    /// Interpolated texture coordinates.
+    uv: [[f32; W]; 2],
+    /// `kd_pi` of the triangles (zero for bitmaps).
+    kd_pi: [[f32; W]; 3],
+    /// Lanes that hit a front side; lanes whose triangle has a bitmap reflectance.
+    front: u32,
+    bitmap: u32,
+}
+
+/// The vector steps of the [`Wavefront`] in AVX2: the same IEEE operations in the same order as
+/// the scalar code they mirror (named on each function), hence the same bits.
+#[cfg(target_arch = "x86_64")]
+mod avx {
+    use super::{PacketHits, RayPacket, Row, ScatterIn, VertexLanes, W};
+    use super::{ROW_BITMAP, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG, ROW_NG_OFF, ROW_TWO_SIDED, ROW_UV};
+    use std::arch::x86_64::*;
+
+    #[inline(always)]
+    fn ld(a: &[f32; W]) -> __m256 {
+        // SAFETY: 8 floats, unaligned load.
+        unsafe { _mm256_loadu_ps(a.as_ptr()) }
+    }
+    #[inline(always)]
+    fn st(a: &mut [f32; W], v: __m256) {
+        // SAFETY: 8 floats, unaligned store.
+        unsafe { _mm256_storeu_ps(a.as_mut_ptr(), v) }
+    }
+    #[inline(always)]
+    fn st_mask(a: &mut [u32; W], v: __m256) {
+        // SAFETY: 8 u32, unaligned store.
+        unsafe { _mm256_storeu_ps(a.as_mut_ptr().cast(), v) }
+    }
+    /// Lane `l` all ones iff bit `l` of `b`.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(super) fn lane_mask(b: u32) -> __m256 {
+        let one = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(b as i32), one), one))
+    }
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn bits(m: __m256) -> u32 {
+        _mm256_movemask_ps(m) as u32
+    }
+
+    /// `vertex`'s pending weights `w = kd_pi · ratio` (`Spectrum * f32`) of the lanes in `pend`:
+    /// `β *= w` there; returns the lanes whose `w` is black.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(super) fn pending_weights(beta: &mut [[f32; W]; 3], kd_pi: &[[f32; W]; 3], ratio: &[f32; W], pend: u32) -> u32 {
+        let zero = _mm256_setzero_ps();
+        let r = ld(ratio);
+        let pm = lane_mask(pend);
+        let mut black = pm;
+        for c in 0..3 {
+            let w = _mm256_mul_ps(ld(&kd_pi[c]), r);
+            black = _mm256_and_ps(black, _mm256_cmp_ps::<_CMP_EQ_OQ>(w, zero));
+            let b = ld(&beta[c]);
+            st(&mut beta[c], _mm256_blendv_ps(b, _mm256_mul_ps(b, w), pm));
+        }
+        bits(black)
+    }
+
+    /// The hit triangles' data (rows `prim`), barycentrics `b0 = 1 − b1 − b2`, uvs
+    /// `uv0·b0 + uv1·b1 + uv2·b2` and sides `(−d)·ng > 0` of [`W`] vertices (as `vertex`), and the
+    /// kernel's inputs except the direction samples.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(super) fn vertices(
+        rows: &[Row],
+        prim: &[u32; W],
+        hits: &PacketHits,
+        d: &[[f32; W]; 3],
+        any_normals: bool,
+        inp: &mut ScatterIn,
+    ) -> VertexLanes {
+        assert!(prim.iter().all(|&p| (p as usize) < rows.len()), "triangle index out of range");
+        // SAFETY: 8 u32, unaligned load.
+        let idx = unsafe { _mm256_loadu_si256(prim.as_ptr().cast()) };
+        let idx = _mm256_slli_epi32::<5>(idx); // 32 floats per row
+        let base = rows.as_ptr().cast::<f32>();
+        // SAFETY: every lane's row index is < rows.len() (asserted above) and k < 32, so
+        // each gathered float lies inside `rows`.
+        let field = |k: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(k), idx) };
+        let ng = [field(ROW_NG), field(ROW_NG + 1), field(ROW_NG + 2)];
+        let (b1, b2) = (ld(&hits.b1), ld(&hits.b2));
+        let b0 = _mm256_sub_ps(_mm256_sub_ps(_mm256_set1_ps(1.0), b1), b2);
+        let interp = |k: usize| {
+            let a = _mm256_add_ps(_mm256_mul_ps(field(k), b0), _mm256_mul_ps(field(k + 2), b1));
+            _mm256_add_ps(a, _mm256_mul_ps(field(k + 4), b2))
+        };
+        let (u, v) = (interp(ROW_UV), interp(ROW_UV + 1));
+        let neg = |x| _mm256_xor_ps(x, _mm256_set1_ps(-0.0));
+        let dot = _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(neg(ld(&d[0])), ng[0]), _mm256_mul_ps(neg(ld(&d[1])), ng[1])),
+            _mm256_mul_ps(neg(ld(&d[2])), ng[2]),
+        );
+        let front = bits(_mm256_cmp_ps::<_CMP_GT_OQ>(dot, _mm256_setzero_ps()));
+        inp.t = hits.t;
+        for c in 0..3 {
+            st(&mut inp.ng[c], ng[c]);
+            st(&mut inp.ng_off[c], field(ROW_NG_OFF + c));
+        }
+        if any_normals {
+            for k in 0..3 {
+                for c in 0..3 {
+                    st(&mut inp.n[k][c], field(ROW_N + 3 * k + c));
+                }
+            }
+            st_mask(&mut inp.has_n, field(ROW_HAS_N));
+        }
+        st_mask(&mut inp.two_sided, field(ROW_TWO_SIDED));
+        st(&mut inp.b[0], b0);
+        st(&mut inp.b[1], b1);
+        st(&mut inp.b[2], b2);
+        let mut out = VertexLanes { uv: [[0.0; W]; 2], kd_pi: [[0.0; W]; 3], front, bitmap: bits(field(ROW_BITMAP)) };
+        st(&mut out.uv[0], u);
+        st(&mut out.uv[1], v);
+        for c in 0..3 {
+            st(&mut out.kd_pi[c], field(ROW_KD + c));
+        }
+        out
+    }
+
+    /// Scatters the lanes in `alive` ([`super::scatter_lanes`]) and moves their rays to the
+    /// sampled directions; returns the lanes whose sample is valid and writes their `ratio`.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(super) fn scatter(rays: &mut RayPacket, inp: &ScatterIn, alive: u32, ratio: &mut [f32; W]) -> u32 {
+        let out = kernel(rays, inp);
+        // SAFETY: 8 u32, unaligned load.
+        let valid = unsafe { _mm256_loadu_ps(out.valid.as_ptr().cast()) };
+        let am = _mm256_and_ps(lane_mask(alive), valid);
+        for c in 0..3 {
+            let o = _mm256_blendv_ps(ld(&rays.o[c]), ld(&out.o[c]), am);
+            st(&mut rays.o[c], o);
+            let d = _mm256_blendv_ps(ld(&rays.d[c]), ld(&out.d[c]), am);
+            st(&mut rays.d[c], d);
+        }
+        *ratio = out.ratio;
+        bits(am)
+    }
+
+    /// [`super::scatter_lanes`] compiled with AVX2, kept out of line (the lane loops vectorise
+    /// reliably in a function of their own).
+    #[target_feature(enable = "avx2")]
+    #[inline(never)]
+    fn kernel(rays: &RayPacket, inp: &ScatterIn) -> super::ScatterOut {
+        super::scatter_lanes(rays, inp)
+    }
+}
+
 impl Wavefront {
+    /// Whether this CPU runs the wavefront (AVX2); otherwise the paths are traced one at a time
+    /// ([`trace_path`], same results).
+    fn available() -> bool {
+        #[cfg(target_arch = "x86_64")]
+        return std::arch::is_x86_feature_detected!("avx2");
+        #[cfg(not(target_arch = "x86_64"))]
+        return false;
+    }
+
+    /// Traces `paths` (the caller checked [`Wavefront::available`]).
     fn run<'a>(
         ctx: &mut PathCtx<'a, '_>,
+        tab: &LambertTable<'a>,
         stream: &RngStream,
         paths: std::ops::Range<u64>,
-        kernel: ScatterKernel,
         packet: Option<&PacketAccel>,
     ) {
-        let mut lanes: [Option<PathState<'a>>; W] = std::array::from_fn(|_| None);
-        let mut next = paths.start;
-        let (scene, sampler) = (ctx.scene, ctx.sampler);
-        let refill = |lane: &mut Option<PathState<'a>>, next: &mut u64| {
-            while lane.is_none() && *next < paths.end {
-                *lane = start_path(scene, sampler, stream.rng(*next));
-                *next += 1;
-            }
-        };
-        for lane in lanes.iter_mut() {
-            refill(lane, &mut next);
+        #[cfg(target_arch = "x86_64")]
+        if Wavefront::available() {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { Wavefront::run_avx2(ctx, tab, stream, paths, packet) };
         }
-        let mut inp = ScatterIn::default();
-        // per scattered lane: its triangle, texture and uv (for the pending weight)
-        let mut scattered: [Option<(&Prim<'a>, &'a TextureDesc, Vec2)>; W] = [None; W];
-        while lanes.iter().any(|l| l.is_some()) {
-            // the lanes' rays (inactive lanes: tmax 0), traced and then read by the kernel
-            let mut rays = RayPacket::default();
-            for (l, lane) in lanes.iter().enumerate() {
-                if let Some(st) = lane {
-                    rays.set(l, &st.ray);
+        for i in paths {
+            trace_path(ctx, stream.rng(i));
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn run_avx2<'a>(
+        ctx: &mut PathCtx<'a, '_>,
+        tab: &LambertTable<'a>,
+        stream: &RngStream,
+        paths: std::ops::Range<u64>,
+        packet: Option<&PacketAccel>,
+    ) {
+        let (scene, sampler, s) = (ctx.scene, ctx.sampler, ctx.s);
+        let mut ln = Lanes {
+            rays: RayPacket::default(),
+            rng: std::array::from_fn(|_| stream.rng(0)),
+            beta: [[0.0; W]; 3],
+            b0: [0.0; W],
+            depth: [0; W],
+            pending: 0,
+            bitmap: 0,
+            ratio: [0.0; W],
+            kd_pi: [[0.0; W]; 3],
+            tex: [None; W],
+            uv: [Vec2::ZERO; W],
+            active: 0,
+        };
+        let mut next = paths.start;
+        // lane `l` takes the next path of the batch that carries something, or turns inactive
+        let refill = |ln: &mut Lanes<'a>, l: usize, next: &mut u64| {
+            while *next < paths.end {
+                let st = start_path(scene, sampler, stream.rng(*next));
+                *next += 1;
+                if let Some(st) = st {
+                    ln.start(l, st);
+                    return;
                 }
             }
-            let hits: [Option<Hit>; W] = match packet {
-                Some(pa) => pa.intersect(&rays),
+            ln.active &= !(1 << l);
+            ln.rays.tmax[l] = 0.0;
+        };
+        for l in 0..W {
+            refill(&mut ln, l, &mut next);
+        }
+        let rows = &tab.rows[..];
+        let mut inp = ScatterIn::default();
+        while ln.active != 0 {
+            let hits = match packet {
+                Some(pa) => pa.intersect_avx2(&ln.rays),
                 None => {
-                    std::array::from_fn(|l| lanes[l].as_ref().and_then(|st| scene.intersect_hit(&st.ray)))
+                    let mut h = PacketHits::NONE;
+                    for l in lanes_of(ln.active) {
+                        h.set(l, scene.intersect_hit(&ln.rays.ray(l)));
+                    }
+                    h
                 }
             };
-            for l in 0..W {
-                scattered[l] = None;
-                let Some(st) = lanes[l].as_mut() else { continue };
-                let Some(v) = vertex(ctx, st, hits[l]) else {
-                    lanes[l] = None;
-                    continue;
-                };
-                let (pr, h) = (v.pr, v.hit);
-                let Mat::Diffuse { tex, two_sided } = pr.mat else {
-                    unreachable!("wavefront: Lambertian only")
-                };
-                // `Lambert::sample`: drawn for the generic sampler, then the direction sample
-                let _uc = st.rng.next_f32();
-                let u = st.rng.next_2d();
+            // A lane whose ray missed ends (its pending weight and roulette change nothing).
+            let hit = ln.active & mask(|l| hits.prim[l] >= 0);
+            // `vertex`: the pending weights (bitmap albedos looked up now) and the roulette
+            for l in lanes_of(ln.pending & ln.bitmap & hit) {
+                let tex = ln.tex[l].expect("bitmap lanes hold their texture");
+                let k = eval_texture(tex, ln.uv[l]) * INV_PI;
                 for c in 0..3 {
-                    inp.ng[c][l] = pr.ng[c];
-                    inp.ng_off[c][l] = pr.ng_off[c];
+                    ln.kd_pi[c][l] = k[c];
                 }
-                inp.t[l] = h.t;
-                match pr.normals {
-                    Some(ns) => {
-                        for (k, nk) in ns.iter().enumerate() {
-                            for c in 0..3 {
-                                inp.n[k][c][l] = nk[c];
-                            }
-                        }
-                        inp.has_n[l] = u32::MAX;
-                    }
-                    None => inp.has_n[l] = 0,
-                }
-                inp.two_sided[l] = if two_sided { u32::MAX } else { 0 };
-                inp.b[0][l] = v.b0;
-                inp.b[1][l] = h.b1;
-                inp.b[2][l] = h.b2;
-                inp.u[0][l] = u.x;
-                inp.u[1][l] = u.y;
-                scattered[l] = Some((pr, tex, v.uv));
             }
-            let out = kernel(&rays, &inp);
-            for l in 0..W {
-                let Some((pr, tex, uv)) = scattered[l] else {
-                    refill(&mut lanes[l], &mut next);
-                    continue;
-                };
-                let st = lanes[l].as_mut().expect("scattered lanes hold a path");
-                if out.valid[l] == 0 {
-                    lanes[l] = None;
-                    refill(&mut lanes[l], &mut next);
-                    continue;
+            let pend = ln.pending & hit;
+            let black = avx::pending_weights(&mut ln.beta, &ln.kd_pi, &ln.ratio, pend);
+            let mut alive = hit & !(pend & black);
+            if s.rr_depth >= 0 {
+                for l in lanes_of(alive & pend & mask(|l| ln.depth[l] >= s.rr_depth)) {
+                    let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
+                    let q = survival(beta, ln.b0[l]);
+                    if ln.rng[l].next_f32() >= q {
+                        alive &= !(1 << l);
+                    } else {
+                        let beta = beta * (1.0 / q);
+                        for c in 0..3 {
+                            ln.beta[c][l] = beta[c];
+                        }
+                    }
                 }
-                st.pending = Some(Weight::lambert(pr, tex, uv, out.ratio[l]));
-                st.ray = Ray::new(
-                    Vec3::new(out.o[0][l], out.o[1][l], out.o[2][l]),
-                    Vec3::new(out.d[0][l], out.d[1][l], out.d[2][l]),
-                );
+            }
+            // the new vertices: triangle data, deposits, direction samples, scattering
+            if alive != 0 {
+                for l in lanes_of(alive) {
+                    ln.depth[l] += 1;
+                }
+                let prim: [u32; W] =
+                    std::array::from_fn(|l| if alive & (1 << l) != 0 { hits.prim[l] as u32 } else { 0 });
+                let v = avx::vertices(rows, &prim, &hits, &ln.rays.d, tab.any_normals, &mut inp);
+                for l in lanes_of(alive & v.front) {
+                    let pr = &ctx.prims[prim[l] as usize];
+                    let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
+                    deposit(ctx.sink, ctx.bad, s, pr, Vec2::new(v.uv[0][l], v.uv[1][l]), beta, ln.depth[l]);
+                }
+                if s.max_depth >= 0 {
+                    alive &= !mask(|l| ln.depth[l] >= s.max_depth);
+                }
+                for l in lanes_of(alive) {
+                    // `Lambert::sample`: drawn for the generic sampler, then the direction sample
+                    let rng = &mut ln.rng[l];
+                    let _uc = rng.next_f32();
+                    let u = rng.next_2d();
+                    inp.u[0][l] = u.x;
+                    inp.u[1][l] = u.y;
+                }
+                alive = avx::scatter(&mut ln.rays, &inp, alive, &mut ln.ratio);
+                ln.kd_pi = v.kd_pi;
+                ln.bitmap = alive & v.bitmap;
+                for l in lanes_of(ln.bitmap) {
+                    let tex = tab.tex[prim[l] as usize].expect("bitmap rows have a texture");
+                    let uv = Vec2::new(v.uv[0][l], v.uv[1][l]);
+                    ln.tex[l] = Some(tex);
+                    ln.uv[l] = uv;
+                    prefetch_texture(tex, uv);
+                }
+            }
+            ln.pending = alive;
+            let ended = ln.active & !alive;
+            ln.active = alive;
+            for l in lanes_of(ended) {
+                refill(&mut ln, l, &mut next);
             }
         }
     }
+}
+
+/// Mask of the lanes where `f(l)` holds.
+#[inline(always)]
+fn mask(f: impl Fn(usize) -> bool) -> u32 {
+    (0..W).fold(0, |m, l| m | ((f(l) as u32) << l))
 }
 
 /// Deposits in flight per worker: the queue length of [`Sink`].
