@@ -74,7 +74,16 @@ impl PacketAccel {
     /// Wraps a triangle soup (the cost per packet is linear in the triangle count: meant for a
     /// few dozen).
     pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
-        let corners = tris.iter().map(|t| t.map(|p| Corner([p.x, p.y, p.z, 0.0]))).collect();
+        // the first corner's padding holds the triangle's index (its bits), broadcast by the loop
+        let corners = tris
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                let mut c = t.map(|p| Corner([p.x, p.y, p.z, 0.0]));
+                c[0].0[3] = f32::from_bits(i as u32);
+                c
+            })
+            .collect();
         PacketAccel { corners, brute: BruteForce::new(tris) }
     }
 
@@ -115,6 +124,9 @@ impl PacketAccel {
     #[inline]
     pub(crate) fn intersect_avx2(&self, rays: &RayPacket) -> PacketHits {
         use std::arch::x86_64::*;
+        if self.corners.is_empty() {
+            return PacketHits::NONE;
+        }
         // Per lane, branch-free: the axis choice and shear of `TriRay::new`, except that kx, ky
         // are always (kz + 1, kz + 2) mod 3: `TriRay` swaps them when d_kz < 0, which negates u,
         // v, w, det and tt exactly (IEEE `a − b = −(b − a)`) and leaves the sign tests, t and the
@@ -152,11 +164,9 @@ impl PacketAccel {
         let zero = _mm256_setzero_ps();
         let one = _mm256_set1_ps(1.0);
         let mut best_t = ldf(&rays.tmax);
-        let mut best_i = _mm256_set1_epi32(-1);
-        let mut best_b1 = zero;
-        let mut best_b2 = zero;
+        let mut best_i = _mm256_set1_ps(f32::from_bits(u32::MAX)); // -1: no hit
         let mut zany = zero;
-        for (i, c) in self.corners.iter().enumerate() {
+        for c in self.corners.iter() {
             let mut px = [zero; 3];
             let mut py = [zero; 3];
             let mut pz = [zero; 3];
@@ -174,8 +184,11 @@ impl PacketAccel {
             let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
             let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
             let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
-            let eq0 = |x| _mm256_cmp_ps::<_CMP_EQ_OQ>(x, zero);
-            zany = _mm256_or_ps(zany, _mm256_or_ps(_mm256_or_ps(eq0(u), eq0(v)), eq0(w)));
+            // Some edge function exactly ±0 ⇒ the product u·v·w is ±0 or NaN (0·∞), which the
+            // unordered comparison catches; an underflowing product or a NaN input also flags
+            // the lane, which then merely takes the exact scalar path.
+            let uvw = _mm256_mul_ps(_mm256_mul_ps(u, v), w);
+            zany = _mm256_or_ps(zany, _mm256_cmp_ps::<_CMP_EQ_UQ>(uvw, zero));
             // Lanes with a zero edge function are recomputed by the scalar loop, so here u, v, w
             // are non-zero: mixed signs ⇔ the sign bits differ (`TriRay`'s test for such
             // values). Then `det ≠ 0`, and `TriRay`'s check `(tt > 0) == (det > 0)` only rejects
@@ -194,14 +207,32 @@ impl PacketAccel {
             // blends look at the sign bit only: set where `good` and the signs agree
             let take = _mm256_andnot_ps(mixed, good);
             best_t = _mm256_blendv_ps(best_t, t, take);
-            best_b1 = _mm256_blendv_ps(best_b1, _mm256_mul_ps(v, inv), take);
-            best_b2 = _mm256_blendv_ps(best_b2, _mm256_mul_ps(w, inv), take);
-            best_i = _mm256_castps_si256(_mm256_blendv_ps(
-                _mm256_castsi256_ps(best_i),
-                _mm256_castsi256_ps(_mm256_set1_epi32(i as i32)),
-                take,
-            ));
+            best_i = _mm256_blendv_ps(best_i, _mm256_broadcast_ss(&c[0].0[3]), take);
         }
+        // The barycentrics of each lane's closest triangle: the loop's operations again, on the
+        // winner's corners gathered per lane (same bits as if they had been kept in the loop).
+        let best_i = _mm256_castps_si256(best_i);
+        let row = _mm256_mullo_epi32(_mm256_max_epi32(best_i, _mm256_setzero_si256()), _mm256_set1_epi32(12));
+        let base = self.corners.as_ptr().cast::<f32>();
+        let mut px = [zero; 3];
+        let mut py = [zero; 3];
+        for v in 0..3 {
+            let at = |k| _mm256_add_epi32(row, _mm256_add_epi32(_mm256_set1_epi32(4 * v as i32), k));
+            // SAFETY: lanes without a hit read triangle 0 (the loop ran, so there is one); the
+            // others read their winner's corner `v`, axis 0..2: inside `corners`.
+            let g = |k| unsafe { _mm256_i32gather_ps::<4>(base, at(k)) };
+            let az = _mm256_sub_ps(g(ikz), oz);
+            let ax = _mm256_sub_ps(g(ikx), ox);
+            let ay = _mm256_sub_ps(g(iky), oy);
+            px[v] = _mm256_sub_ps(ax, _mm256_mul_ps(sx, az));
+            py[v] = _mm256_sub_ps(ay, _mm256_mul_ps(sy, az));
+        }
+        let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
+        let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
+        let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
+        let inv = _mm256_div_ps(one, _mm256_add_ps(_mm256_add_ps(u, v), w));
+        let best_b1 = _mm256_mul_ps(v, inv);
+        let best_b2 = _mm256_mul_ps(w, inv);
         let mut h = PacketHits::NONE;
         // SAFETY: as above.
         unsafe {
