@@ -1172,11 +1172,24 @@ impl Wavefront {
             active: 0,
         };
         let mut next = paths.start;
+        // the starts of the next paths, prepared W at a time; `taken` of them handed out
+        let lights = light_rows(scene);
+        let mut block: [Option<PathState<'a>>; W] = std::array::from_fn(|_| None);
+        let mut taken = W;
         // lane `l` takes the next path of the batch that carries something, or turns inactive
-        let refill = |ln: &mut Lanes<'a>, l: usize, next: &mut u64| {
-            while *next < paths.end {
-                let st = start_path(scene, sampler, stream.rng(*next));
-                *next += 1;
+        let mut refill = |ln: &mut Lanes<'a>, l: usize| {
+            loop {
+                if taken == W {
+                    if next >= paths.end {
+                        break;
+                    }
+                    let end = (next + W as u64).min(paths.end);
+                    block = starts(scene, sampler, &lights, stream, next..end, true);
+                    next = end;
+                    taken = 0;
+                }
+                let st = block[taken].take();
+                taken += 1;
                 if let Some(st) = st {
                     ln.start(l, st);
                     return;
@@ -1186,7 +1199,7 @@ impl Wavefront {
             ln.rays.tmax[l] = 0.0;
         };
         for l in 0..W {
-            refill(&mut ln, l, &mut next);
+            refill(&mut ln, l);
         }
         let rows = &tab.rows[..];
         let mut inp = ScatterIn::default();
@@ -1267,10 +1280,199 @@ impl Wavefront {
             let ended = ln.active & !alive;
             ln.active = alive;
             for l in lanes_of(ended) {
-                refill(&mut ln, l, &mut next);
+                refill(&mut ln, l);
             }
         }
     }
+}
+
+/// Triangle lights as the SIMD path starts need them, one entry per light (`None` for other
+/// lights, whose paths start through [`start_path`]).
+#[derive(Clone, Copy)]
+struct LightRow {
+    p: [Vec3; 3],
+    frame: Frame,
+    /// The light's normal and its `normalize_or_zero` (the ray offset's direction).
+    n: Vec3,
+    n_off: Vec3,
+    radiance: Spectrum,
+    inv_area: f32,
+}
+
+fn light_rows(scene: &Scene) -> Vec<Option<LightRow>> {
+    scene
+        .lights
+        .iter()
+        .map(|l| match l {
+            crate::light::Light::Triangle(t) => Some(LightRow {
+                p: t.p,
+                frame: *t.frame(),
+                n: t.n,
+                n_off: t.n.normalize_or_zero(),
+                radiance: t.radiance,
+                inv_area: t.inv_area(),
+            }),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Inputs of [`start_lanes`]: per lane the chosen light's data and the position and direction
+/// samples.
+#[derive(Clone, Copy, Default)]
+struct StartIn {
+    p: [[[f32; W]; 3]; 3],
+    s: [[f32; W]; 3],
+    t: [[f32; W]; 3],
+    n: [[f32; W]; 3],
+    n_off: [[f32; W]; 3],
+    le: [[f32; W]; 3],
+    inv_area: [f32; W],
+    pmf: [f32; W],
+    u_pos: [[f32; W]; 2],
+    u_dir: [[f32; W]; 2],
+}
+
+/// Outputs: the offset ray, β, and `valid` = 0 where the sample carries nothing.
+#[derive(Clone, Copy, Default)]
+struct StartOut {
+    o: [[f32; W]; 3],
+    d: [[f32; W]; 3],
+    beta: [[f32; W]; 3],
+    valid: [u32; W],
+}
+
+/// [`start_path`] for triangle lights on [`W`] lanes after the light choice: `sample_le`
+/// (`square_to_uniform_triangle`, the corners' combination, `square_to_cosine_hemisphere`,
+/// `Frame::to_world`, `pdf_dir = z/π`), the validity checks, `β = Le·(|d·n| / (pmf·pdf_pos·
+/// pdf_dir))` and `spawn_ray`'s offset, with the same operations in the same order (selects for
+/// branches), hence the same bits.
+#[inline(always)]
+fn start_lanes(i: &StartIn) -> StartOut {
+    use crate::fastmath::wide::{self, F};
+    type V = [F<W>; 3];
+    let ld = |a: &[[f32; W]; 3]| -> V { [F(a[0]), F(a[1]), F(a[2])] };
+    let zero = F::<W>::splat(0.0);
+    // square_to_uniform_triangle
+    let (ux, uy) = (F(i.u_pos[0]), F(i.u_pos[1]));
+    let lt = ux.lt(uy);
+    let half_x = ux / 2.0;
+    let half_y = uy / 2.0;
+    let b0 = lt.select(half_x, ux - half_y);
+    let b1 = lt.select(uy - half_x, half_y);
+    // p0·(1 − b0 − b1) + p1·b0 + p2·b1
+    let w0 = 1.0 - b0 - b1;
+    let (p0, p1, p2) = (ld(&i.p[0]), ld(&i.p[1]), ld(&i.p[2]));
+    let o: V = std::array::from_fn(|c| p0[c] * w0 + p1[c] * b0 + p2[c] * b1);
+    // square_to_cosine_hemisphere (concentric map)
+    let ox = 2.0 * F(i.u_dir[0]) - 1.0;
+    let oy = 2.0 * F(i.u_dir[1]) - 1.0;
+    let at_centre = ox.eq(zero) & oy.eq(zero);
+    let wide_x = ox.abs().gt(oy.abs());
+    let r = wide_x.select(ox, oy);
+    let turns = wide_x.select((oy / ox) * 0.125, 0.25 - (ox / oy) * 0.125);
+    let (sn, cs) = wide::sincos_2pi(turns);
+    let dx = at_centre.select(zero, r * cs);
+    let dy = at_centre.select(zero, r * sn);
+    let z = (1.0 - (dx * dx + dy * dy)).max(zero).sqrt();
+    // Frame::to_world
+    let (fs, ft, fnn) = (ld(&i.s), ld(&i.t), ld(&i.n));
+    let dir: V = std::array::from_fn(|c| (fs[c] * dx + ft[c] * dy) + fnn[c] * z);
+    let pdf_dir = z / std::f32::consts::PI;
+    let (pmf, pdf_pos) = (F(i.pmf), F(i.inv_area));
+    let valid = z.gt(zero) & pmf.gt(zero) & pdf_pos.gt(zero) & pdf_dir.gt(zero);
+    let n = ld(&i.n);
+    let cos = ((dir[0] * n[0] + dir[1] * n[1]) + dir[2] * n[2]).abs();
+    let k = cos / (pmf * pdf_pos * pdf_dir);
+    let le = ld(&i.le);
+    // offset_ray_origin(o, n, dir)
+    let n_off = ld(&i.n_off);
+    let pa = [o[0].abs(), o[1].abs(), o[2].abs()];
+    let mx = pa[1].gt(pa[2]).select(pa[1], pa[2]);
+    let mx = pa[0].gt(mx).select(pa[0], mx);
+    let mag = (1.0 + mx) * crate::accel::triangle::RAY_OFFSET_SCALE;
+    let mag = ((n_off[0] * dir[0] + n_off[1] * dir[1]) + n_off[2] * dir[2]).ge(zero).select(mag, -mag);
+    let mut out = StartOut::default();
+    for c in 0..3 {
+        out.o[c] = (o[c] + n_off[c] * mag).0;
+        out.d[c] = dir[c].0;
+        out.beta[c] = (le[c] * k).0;
+    }
+    out.valid = valid.0;
+    out
+}
+
+/// The path starts of the indices `range` (at most [`W`]), in order; `None` where
+/// [`start_path`] gives `None` (same paths, same bits: triangle lights through
+/// [`start_lanes`], other lights through `start_path` itself).
+fn starts<'a>(
+    scene: &Scene,
+    sampler: &crate::light::LightSampler,
+    lights: &[Option<LightRow>],
+    stream: &RngStream,
+    range: std::ops::Range<u64>,
+    avx: bool,
+) -> [Option<PathState<'a>>; W] {
+    let mut out: [Option<PathState<'a>>; W] = std::array::from_fn(|_| None);
+    let mut inp = StartIn::default();
+    let mut rngs: [Option<Rng>; W] = std::array::from_fn(|_| None);
+    for (l, i) in range.enumerate() {
+        let mut rng = stream.rng(i);
+        let (li, pmf, _) = sampler.sample(rng.next_f32());
+        let Some(row) = &lights[li] else {
+            out[l] = start_path(scene, sampler, stream.rng(i));
+            continue;
+        };
+        let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
+        for c in 0..3 {
+            for k in 0..3 {
+                inp.p[k][c][l] = row.p[k][c];
+            }
+            inp.s[c][l] = row.frame.s[c];
+            inp.t[c][l] = row.frame.t[c];
+            inp.n[c][l] = row.n[c];
+            inp.n_off[c][l] = row.n_off[c];
+            inp.le[c][l] = row.radiance[c];
+        }
+        inp.inv_area[l] = row.inv_area;
+        inp.pmf[l] = pmf;
+        inp.u_pos[0][l] = u_pos.x;
+        inp.u_pos[1][l] = u_pos.y;
+        inp.u_dir[0][l] = u_dir.x;
+        inp.u_dir[1][l] = u_dir.y;
+        rngs[l] = Some(rng);
+    }
+    let o = start_kernel(avx)(&inp);
+    for (l, rng) in rngs.into_iter().enumerate() {
+        let Some(rng) = rng else { continue };
+        if o.valid[l] == 0 {
+            continue;
+        }
+        let beta = Spectrum(std::array::from_fn(|c| o.beta[c][l]));
+        let ray = Ray::new(
+            Vec3::new(o.o[0][l], o.o[1][l], o.o[2][l]),
+            Vec3::new(o.d[0][l], o.d[1][l], o.d[2][l]),
+        );
+        out[l] = Some(PathState { rng, ray, beta, b0: beta.max_component(), depth: 0, pending: None });
+    }
+    out
+}
+
+/// [`start_lanes`] compiled for this CPU (AVX2 when `avx`; same bits either way).
+fn start_kernel(avx: bool) -> fn(&StartIn) -> StartOut {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        fn avx2(i: &StartIn) -> StartOut {
+            start_lanes(i)
+        }
+        if avx {
+            // SAFETY: `avx` is set only when the CPU supports AVX2.
+            return |i| unsafe { avx2(i) };
+        }
+    }
+    let _ = avx;
+    start_lanes
 }
 
 /// Mask of the lanes where `f(l)` holds.

@@ -65,6 +65,14 @@ impl TriangleLight {
         let (n, area) = (c / len, 0.5 * len);
         Some(TriangleLight { p, n, area, radiance, prim, frame: Frame::from_normal(n), inv_area: 1.0 / area })
     }
+    /// `Frame::from_normal(n)` (the emission frame).
+    pub fn frame(&self) -> &Frame {
+        &self.frame
+    }
+    /// `1 / area`, the area density of [`Light::sample_le`].
+    pub fn inv_area(&self) -> f32 {
+        self.inv_area
+    }
     fn point(&self, u: Vec2) -> Vec3 {
         let b = square_to_uniform_triangle(u);
         self.p[0] * (1.0 - b.x - b.y) + self.p[1] * b.x + self.p[2] * b.y
