@@ -34,7 +34,12 @@ unsafe impl Zeroable for f64 {}
 enum Repr<T> {
     Vec(Vec<T>),
     #[cfg(target_os = "linux")]
-    Map { base: *mut libc::c_void, map_len: usize, data: *mut T, len: usize },
+    Map {
+        base: *mut libc::c_void,
+        map_len: usize,
+        data: *mut T,
+        len: usize,
+    },
 }
 
 // SAFETY: the mapping is owned exclusively by the buffer (like a `Vec<T>`), so it may move to

@@ -275,7 +275,12 @@ impl PacketHits {
     /// The hit of lane `l`.
     #[inline]
     pub fn hit(&self, l: usize) -> Option<Hit> {
-        (self.prim[l] >= 0).then(|| Hit { t: self.t[l], prim: self.prim[l] as u32, b1: self.b1[l], b2: self.b2[l] })
+        (self.prim[l] >= 0).then(|| Hit {
+            t: self.t[l],
+            prim: self.prim[l] as u32,
+            b1: self.b1[l],
+            b2: self.b2[l],
+        })
     }
 
     /// Sets lane `l` to `hit`.

@@ -359,7 +359,8 @@ fn trace_fixed(
     let stream = RngStream::new(s.seed, RNG_STREAM);
     // Scenes whose every triangle is Lambertian advance eight paths at a time (same paths,
     // same numbers, same bits as one at a time: see `Wavefront`).
-    let wavefront = if engine == Engine::Scalar || !Wavefront::available() { None } else { LambertTable::new(&prims) };
+    let wavefront =
+        if engine == Engine::Scalar || !Wavefront::available() { None } else { LambertTable::new(&prims) };
     // Small scenes: the wavefront's eight rays are traced together, one per SIMD lane.
     let packet = if wavefront.is_some() && engine == Engine::Auto { scene.packet() } else { None };
     let results: Vec<(Acc, u64)> = (0..workers)
@@ -662,7 +663,15 @@ fn vertex<'p, 'a>(
 /// its vertex number `depth` (none for triangles without a map and, unless `s.direct`, for
 /// first hits); a non-finite weight is counted in `bad` instead.
 #[inline(always)]
-fn deposit(sink: &mut Sink, bad: &mut u64, s: &LightTraceSettings, pr: &Prim, uv: Vec2, beta: Spectrum, depth: i32) {
+fn deposit(
+    sink: &mut Sink,
+    bad: &mut u64,
+    s: &LightTraceSettings,
+    pr: &Prim,
+    uv: Vec2,
+    beta: Spectrum,
+    depth: i32,
+) {
     if !(pr.factor > 0.0 && (depth > 1 || s.direct)) {
         return;
     }
@@ -1016,7 +1025,12 @@ mod avx {
     /// `β *= w` there; returns the lanes whose `w` is black.
     #[target_feature(enable = "avx2")]
     #[inline]
-    pub(super) fn pending_weights(beta: &mut [[f32; W]; 3], kd_pi: &[[f32; W]; 3], ratio: &[f32; W], pend: u32) -> u32 {
+    pub(super) fn pending_weights(
+        beta: &mut [[f32; W]; 3],
+        kd_pi: &[[f32; W]; 3],
+        ratio: &[f32; W],
+        pend: u32,
+    ) -> u32 {
         let zero = _mm256_setzero_ps();
         let r = ld(ratio);
         let pm = lane_mask(pend);
@@ -1082,7 +1096,8 @@ mod avx {
         st(&mut inp.b[0], b0);
         st(&mut inp.b[1], b1);
         st(&mut inp.b[2], b2);
-        let mut out = VertexLanes { uv: [[0.0; W]; 2], kd_pi: [[0.0; W]; 3], front, bitmap: bits(field(ROW_BITMAP)) };
+        let mut out =
+            VertexLanes { uv: [[0.0; W]; 2], kd_pi: [[0.0; W]; 3], front, bitmap: bits(field(ROW_BITMAP)) };
         st(&mut out.uv[0], u);
         st(&mut out.uv[1], v);
         for c in 0..3 {
@@ -1449,10 +1464,8 @@ fn starts<'a>(
             continue;
         }
         let beta = Spectrum(std::array::from_fn(|c| o.beta[c][l]));
-        let ray = Ray::new(
-            Vec3::new(o.o[0][l], o.o[1][l], o.o[2][l]),
-            Vec3::new(o.d[0][l], o.d[1][l], o.d[2][l]),
-        );
+        let ray =
+            Ray::new(Vec3::new(o.o[0][l], o.o[1][l], o.o[2][l]), Vec3::new(o.d[0][l], o.d[1][l], o.d[2][l]));
         out[l] = Some(PathState { rng, ray, beta, b0: beta.max_component(), depth: 0, pending: None });
     }
     out
@@ -1776,9 +1789,14 @@ mod tests {
                 let (li, pmf, _) = sampler.sample(rng.next_f32());
                 let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
                 let Some(es) = scene.lights[li].sample_le(u_pos, u_dir) else { continue };
-                let cos = es.ray.d.dot(es.n).abs();
+                // point lights (no normal): no cosine, no offset
+                let cos = if es.n == Vec3::ZERO { 1.0 } else { es.ray.d.dot(es.n).abs() };
                 let mut beta = es.le * (cos / (pmf * es.pdf_pos * es.pdf_dir));
-                let mut ray = crate::accel::spawn_ray(es.ray.o, es.n, es.ray.d);
+                let mut ray = if es.n == Vec3::ZERO {
+                    es.ray
+                } else {
+                    crate::accel::spawn_ray(es.ray.o, es.n, es.ray.d)
+                };
                 let mut depth = 0;
                 while let Some(si) = scene.intersect(&ray) {
                     depth += 1;
@@ -1865,9 +1883,15 @@ mod tests {
                     Some(AreaEmitterDesc { radiance: Spectrum::rgb(5.0, 4.0, 3.0) }),
                 ),
             ],
+            // a point light too: the wavefront starts its paths one at a time
+            emitters: vec![EmitterDesc::Point {
+                position: v(0.4, 1.2, 0.2),
+                intensity: Spectrum::rgb(0.6, 0.5, 0.4),
+            }],
             ..Default::default()
         };
         let scene = Scene::build(&desc).unwrap();
+        assert_eq!(scene.lights.len(), 3);
         let targets = [
             Some(target(8, 1.0)),
             Some(IrradianceTarget { width: 4, height: 4, texel_area: vec![0.25; 2] }),
