@@ -166,7 +166,9 @@ impl PacketAccel {
         let mut best_t = ldf(&rays.tmax);
         let mut best_i = _mm256_set1_ps(f32::from_bits(u32::MAX)); // -1: no hit
         let mut zany = zero;
-        for c in self.corners.iter() {
+        // One triangle against the eight rays: `(t, ok, zero)` with `ok` = the edge functions'
+        // signs agree and `t > 0`, `zero` = some edge function may be ±0 (see below).
+        let test = |c: &[Corner; 3]| {
             let mut px = [zero; 3];
             let mut py = [zero; 3];
             let mut pz = [zero; 3];
@@ -188,7 +190,7 @@ impl PacketAccel {
             // unordered comparison catches; an underflowing product or a NaN input also flags
             // the lane, which then merely takes the exact scalar path.
             let uvw = _mm256_mul_ps(_mm256_mul_ps(u, v), w);
-            zany = _mm256_or_ps(zany, _mm256_cmp_ps::<_CMP_EQ_UQ>(uvw, zero));
+            let z = _mm256_cmp_ps::<_CMP_EQ_UQ>(uvw, zero);
             // Lanes with a zero edge function are recomputed by the scalar loop, so here u, v, w
             // are non-zero: mixed signs ⇔ the sign bits differ (`TriRay`'s test for such
             // values). Then `det ≠ 0`, and `TriRay`'s check `(tt > 0) == (det > 0)` only rejects
@@ -201,13 +203,31 @@ impl PacketAccel {
             );
             let inv = _mm256_div_ps(one, det);
             let t = _mm256_mul_ps(tt, inv);
-            // `t < best_t` also enforces `t < tmax` (best_t starts at tmax and only decreases)
-            let good =
-                _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(t, zero), _mm256_cmp_ps::<_CMP_LT_OQ>(t, best_t));
-            // blends look at the sign bit only: set where `good` and the signs agree
-            let take = _mm256_andnot_ps(mixed, good);
+            // sign bit set where the signs agree and t > 0 (blends look at the sign bit only)
+            let ok = _mm256_andnot_ps(mixed, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
+            (t, ok, z)
+        };
+        // A lane takes a triangle if it is strictly closer than the best so far (`best_t`
+        // starts at tmax and only decreases): triangles in index order, ties keep the lowest.
+        let mut take = |t, ok, c: &[Corner; 3]| {
+            let take = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, best_t));
             best_t = _mm256_blendv_ps(best_t, t, take);
             best_i = _mm256_blendv_ps(best_i, _mm256_broadcast_ss(&c[0].0[3]), take);
+        };
+        // two triangles per iteration: two independent dependency chains side by side, so the
+        // core overlaps them (one chain alone leaves it waiting on the division)
+        let mut pairs = self.corners.chunks_exact(2);
+        for pair in &mut pairs {
+            let (t0, ok0, z0) = test(&pair[0]);
+            let (t1, ok1, z1) = test(&pair[1]);
+            zany = _mm256_or_ps(zany, _mm256_or_ps(z0, z1));
+            take(t0, ok0, &pair[0]);
+            take(t1, ok1, &pair[1]);
+        }
+        for c in pairs.remainder() {
+            let (t, ok, z) = test(c);
+            zany = _mm256_or_ps(zany, z);
+            take(t, ok, c);
         }
         // The barycentrics of each lane's closest triangle: the loop's operations again, on the
         // winner's corners gathered per lane (same bits as if they had been kept in the loop).
