@@ -785,7 +785,7 @@ struct ScatterOut {
 /// `fastmath::sincos_2pi`, [`super::offset_ray_origin`]), with selects for branches, hence the
 /// same bits in every lane (no fused multiply-add is ever formed).
 #[inline(always)]
-fn scatter_lanes(rays: &RayPacket, i: &ScatterIn) -> ScatterOut {
+fn scatter_lanes<const NORMALS: bool>(rays: &RayPacket, i: &ScatterIn) -> ScatterOut {
     use crate::fastmath::wide::{self, F, M};
     type V = [F<W>; 3];
     let ld = |a: &[[f32; W]; 3]| -> V { [F(a[0]), F(a[1]), F(a[2])] };
@@ -799,11 +799,16 @@ fn scatter_lanes(rays: &RayPacket, i: &ScatterIn) -> ScatterOut {
     let p: V = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
     let wo: V = [-d[0], -d[1], -d[2]];
     // shading normal: interpolated and normalised when the mesh has normals
-    let (n0, n1, n2) = (ld(&i.n[0]), ld(&i.n[1]), ld(&i.n[2]));
-    let ni: V = std::array::from_fn(|c| n0[c] * b0 + n1[c] * b1 + n2[c] * b2);
-    let len = dot(ni, ni).sqrt();
-    let use_ni = M(i.has_n) & len.gt(zero);
-    let ns = sel(use_ni, [ni[0] / len, ni[1] / len, ni[2] / len], ng);
+    // (without `NORMALS` no lane has normals: the select below would pick `ng` everywhere)
+    let ns = if NORMALS {
+        let (n0, n1, n2) = (ld(&i.n[0]), ld(&i.n[1]), ld(&i.n[2]));
+        let ni: V = std::array::from_fn(|c| n0[c] * b0 + n1[c] * b1 + n2[c] * b2);
+        let len = dot(ni, ni).sqrt();
+        let use_ni = M(i.has_n) & len.gt(zero);
+        sel(use_ni, [ni[0] / len, ni[1] / len, ni[2] / len], ng)
+    } else {
+        ng
+    };
     let flip = M(i.two_sided) & dot(wo, ng).lt(zero);
     let n: V = [flip.neg_where(ns[0]), flip.neg_where(ns[1]), flip.neg_where(ns[2])];
     // Frame::from_normal
@@ -1106,12 +1111,19 @@ mod avx {
         out
     }
 
-    /// Scatters the lanes in `alive` ([`super::scatter_lanes`]) and moves their rays to the
-    /// sampled directions; returns the lanes whose sample is valid and writes their `ratio`.
+    /// Scatters the lanes in `alive` ([`super::scatter_lanes`]; `normals` = some triangle of
+    /// the scene has corner normals) and moves their rays to the sampled directions; returns
+    /// the lanes whose sample is valid and writes their `ratio`.
     #[target_feature(enable = "avx2")]
     #[inline]
-    pub(super) fn scatter(rays: &mut RayPacket, inp: &ScatterIn, alive: u32, ratio: &mut [f32; W]) -> u32 {
-        let out = kernel(rays, inp);
+    pub(super) fn scatter(
+        rays: &mut RayPacket,
+        inp: &ScatterIn,
+        alive: u32,
+        ratio: &mut [f32; W],
+        normals: bool,
+    ) -> u32 {
+        let out = if normals { kernel::<true>(rays, inp) } else { kernel::<false>(rays, inp) };
         // SAFETY: 8 u32, unaligned load.
         let valid = unsafe { _mm256_loadu_ps(out.valid.as_ptr().cast()) };
         let am = _mm256_and_ps(lane_mask(alive), valid);
@@ -1129,8 +1141,8 @@ mod avx {
     /// reliably in a function of their own).
     #[target_feature(enable = "avx2")]
     #[inline(never)]
-    fn kernel(rays: &RayPacket, inp: &ScatterIn) -> super::ScatterOut {
-        super::scatter_lanes(rays, inp)
+    fn kernel<const NORMALS: bool>(rays: &RayPacket, inp: &ScatterIn) -> super::ScatterOut {
+        super::scatter_lanes::<NORMALS>(rays, inp)
     }
 }
 
@@ -1280,7 +1292,7 @@ impl Wavefront {
                     inp.u[0][l] = u.x;
                     inp.u[1][l] = u.y;
                 }
-                alive = avx::scatter(&mut ln.rays, &inp, alive, &mut ln.ratio);
+                alive = avx::scatter(&mut ln.rays, &inp, alive, &mut ln.ratio, tab.any_normals);
                 ln.kd_pi = v.kd_pi;
                 ln.bitmap = alive & v.bitmap;
                 for l in lanes_of(ln.bitmap) {
@@ -1872,7 +1884,13 @@ mod tests {
                 shape("floor", floor_quad(1.0), BsdfDesc::Diffuse { reflectance: tex }, None),
                 shape(
                     "wall",
-                    quad([v(-1.0, 0.0, -1.0), v(1.0, 0.0, -1.0), v(1.0, 2.0, -1.0), v(-1.0, 2.0, -1.0)]),
+                    // corner normals (tilted): the shading-normal path of the scattering kernel
+                    TriangleMesh {
+                        normals: [v(0.2, 0.0, 1.0), v(-0.1, 0.1, 1.0), v(0.0, -0.2, 1.0), v(0.1, 0.1, 1.0)]
+                            .map(|n| n.normalize())
+                            .to_vec(),
+                        ..quad([v(-1.0, 0.0, -1.0), v(1.0, 0.0, -1.0), v(1.0, 2.0, -1.0), v(-1.0, 2.0, -1.0)])
+                    },
                     BsdfDesc::TwoSided(Box::new(diffuse(0.7))),
                     None,
                 ),
