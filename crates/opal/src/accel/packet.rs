@@ -166,45 +166,65 @@ impl PacketAccel {
         let mut best_t = ldf(&rays.tmax);
         let mut best_i = _mm256_set1_ps(f32::from_bits(u32::MAX)); // -1: no hit
         let mut zany = zero;
-        // One triangle against the eight rays: `(t, ok, zero)` with `ok` = the edge functions'
-        // signs agree and `t > 0`, `zero` = some edge function may be ±0 (see below).
-        let test = |c: &[Corner; 3]| {
-            let mut px = [zero; 3];
-            let mut py = [zero; 3];
-            let mut pz = [zero; 3];
+        // `K` triangles against the eight rays, each step done for all `K` before the next
+        // (independent dependency chains side by side in the instruction stream, so the core
+        // overlaps them): per triangle `(t, ok, zero)` with `ok` = the edge functions' signs
+        // agree and `t > 0`, `zero` = some edge function may be ±0 (see below).
+        #[inline(always)]
+        fn each<const K: usize>(f: impl FnMut(usize) -> __m256) -> [__m256; K] {
+            let mut f = f;
+            std::array::from_fn(|k| f(k))
+        }
+        let test = |cs: &[[Corner; 3]]| -> ([__m256; 2], [__m256; 2], [__m256; 2]) {
+            let mut px = [[zero; 3]; 2];
+            let mut py = [[zero; 3]; 2];
+            let mut pz = [[zero; 3]; 2];
             for v in 0..3 {
                 // SAFETY: `Corner` is 16-byte aligned and holds 4 floats.
-                let p = unsafe { _mm256_broadcast_ps(&*(c[v].0.as_ptr() as *const __m128)) };
+                let p: [__m256; 2] =
+                    each(|k| unsafe { _mm256_broadcast_ps(&*(cs[k][v].0.as_ptr() as *const __m128)) });
                 // both 128-bit halves hold the corner: an in-lane permute picks axis k per lane
-                let az = _mm256_sub_ps(_mm256_permutevar_ps(p, ikz), oz);
-                let ax = _mm256_sub_ps(_mm256_permutevar_ps(p, ikx), ox);
-                let ay = _mm256_sub_ps(_mm256_permutevar_ps(p, iky), oy);
-                px[v] = _mm256_sub_ps(ax, _mm256_mul_ps(sx, az));
-                py[v] = _mm256_sub_ps(ay, _mm256_mul_ps(sy, az));
-                pz[v] = _mm256_mul_ps(sz, az);
+                let az: [__m256; 2] = each(|k| _mm256_sub_ps(_mm256_permutevar_ps(p[k], ikz), oz));
+                let ax: [__m256; 2] = each(|k| _mm256_sub_ps(_mm256_permutevar_ps(p[k], ikx), ox));
+                let ay: [__m256; 2] = each(|k| _mm256_sub_ps(_mm256_permutevar_ps(p[k], iky), oy));
+                for k in 0..2 {
+                    px[k][v] = _mm256_sub_ps(ax[k], _mm256_mul_ps(sx, az[k]));
+                }
+                for k in 0..2 {
+                    py[k][v] = _mm256_sub_ps(ay[k], _mm256_mul_ps(sy, az[k]));
+                }
+                for k in 0..2 {
+                    pz[k][v] = _mm256_mul_ps(sz, az[k]);
+                }
             }
-            let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
-            let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
-            let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
+            let edge = |k: usize, a: usize, b: usize| {
+                _mm256_sub_ps(_mm256_mul_ps(px[k][a], py[k][b]), _mm256_mul_ps(py[k][a], px[k][b]))
+            };
+            let u: [__m256; 2] = each(|k| edge(k, 2, 1));
+            let v: [__m256; 2] = each(|k| edge(k, 0, 2));
+            let w: [__m256; 2] = each(|k| edge(k, 1, 0));
             // Some edge function exactly ±0 ⇒ the product u·v·w is ±0 or NaN (0·∞), which the
             // unordered comparison catches; an underflowing product or a NaN input also flags
             // the lane, which then merely takes the exact scalar path.
-            let uvw = _mm256_mul_ps(_mm256_mul_ps(u, v), w);
-            let z = _mm256_cmp_ps::<_CMP_EQ_UQ>(uvw, zero);
+            let z =
+                each(|k| _mm256_cmp_ps::<_CMP_EQ_UQ>(_mm256_mul_ps(_mm256_mul_ps(u[k], v[k]), w[k]), zero));
             // Lanes with a zero edge function are recomputed by the scalar loop, so here u, v, w
             // are non-zero: mixed signs ⇔ the sign bits differ (`TriRay`'s test for such
             // values). Then `det ≠ 0`, and `TriRay`'s check `(tt > 0) == (det > 0)` only rejects
             // lanes with `t = tt · (1/det) ≤ 0` or NaN, which `t > 0` rejects as well.
-            let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
-            let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
-            let tt = _mm256_add_ps(
-                _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
-                _mm256_mul_ps(w, pz[2]),
-            );
-            let inv = _mm256_div_ps(one, det);
-            let t = _mm256_mul_ps(tt, inv);
+            let mixed: [__m256; 2] =
+                each(|k| _mm256_or_ps(_mm256_xor_ps(u[k], v[k]), _mm256_xor_ps(u[k], w[k])));
+            let det: [__m256; 2] = each(|k| _mm256_add_ps(_mm256_add_ps(u[k], v[k]), w[k]));
+            let inv: [__m256; 2] = each(|k| _mm256_div_ps(one, det[k]));
+            let tt: [__m256; 2] = each(|k| {
+                _mm256_add_ps(
+                    _mm256_add_ps(_mm256_mul_ps(u[k], pz[k][0]), _mm256_mul_ps(v[k], pz[k][1])),
+                    _mm256_mul_ps(w[k], pz[k][2]),
+                )
+            });
+            let t: [__m256; 2] = each(|k| _mm256_mul_ps(tt[k], inv[k]));
             // sign bit set where the signs agree and t > 0 (blends look at the sign bit only)
-            let ok = _mm256_andnot_ps(mixed, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
+            let ok = each(|k| _mm256_andnot_ps(mixed[k], _mm256_cmp_ps::<_CMP_GT_OQ>(t[k], zero)));
             (t, ok, z)
         };
         // A lane takes a triangle if it is strictly closer than the best so far (`best_t`
@@ -218,16 +238,16 @@ impl PacketAccel {
         // core overlaps them (one chain alone leaves it waiting on the division)
         let mut pairs = self.corners.chunks_exact(2);
         for pair in &mut pairs {
-            let (t0, ok0, z0) = test(&pair[0]);
-            let (t1, ok1, z1) = test(&pair[1]);
-            zany = _mm256_or_ps(zany, _mm256_or_ps(z0, z1));
-            take(t0, ok0, &pair[0]);
-            take(t1, ok1, &pair[1]);
+            let (t, ok, z) = test(pair);
+            zany = _mm256_or_ps(zany, _mm256_or_ps(z[0], z[1]));
+            take(t[0], ok[0], &pair[0]);
+            take(t[1], ok[1], &pair[1]);
         }
-        for c in pairs.remainder() {
-            let (t, ok, z) = test(c);
-            zany = _mm256_or_ps(zany, z);
-            take(t, ok, c);
+        if let [c] = pairs.remainder() {
+            // the odd last triangle, paired with itself (its second result is ignored)
+            let (t, ok, z) = test(&[*c, *c]);
+            zany = _mm256_or_ps(zany, z[0]);
+            take(t[0], ok[0], c);
         }
         // The barycentrics of each lane's closest triangle: the loop's operations again, on the
         // winner's corners gathered per lane (same bits as if they had been kept in the loop).
