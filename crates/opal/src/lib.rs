@@ -23,7 +23,6 @@ pub mod error;
 pub mod fastmath;
 pub mod geometry;
 pub mod gonio;
-pub mod hugemem;
 pub mod image;
 pub mod integrator;
 pub mod light;

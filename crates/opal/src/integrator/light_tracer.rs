@@ -220,14 +220,14 @@ impl FixedPoint {
 /// size (2²⁴ units), so about one deposit in a hundred touches the spill map, which is
 /// allocated at its first use (zeroed pages: only the pages touched become resident).
 struct Cells {
-    fine: crate::hugemem::ZeroedBuf<i32>,
+    fine: Vec<i32>,
     spill: Vec<i64>,
 }
 
 impl Cells {
     /// `n` channels (3 per texel), all zero.
     fn new(n: usize) -> Cells {
-        Cells { fine: crate::hugemem::ZeroedBuf::new(n), spill: Vec::new() }
+        Cells { fine: vec![0; n], spill: Vec::new() }
     }
 
     /// Adds `v` to channels `i..i + 3`.
