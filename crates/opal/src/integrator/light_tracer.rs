@@ -884,6 +884,8 @@ const ROW_N: usize = 15;
 const ROW_HAS_N: usize = 24;
 const ROW_TWO_SIDED: usize = 25;
 const ROW_BITMAP: usize = 26;
+/// Deposit map width and height (as f32, exact: maps are at most 4096 texels wide).
+const ROW_SIZE: usize = 27;
 
 /// The wavefront's triangle table: rows, the bitmap of each triangle with a bitmap
 /// reflectance, and whether any triangle has corner normals.
@@ -891,6 +893,11 @@ struct LambertTable<'a> {
     rows: Vec<Row>,
     tex: Vec<Option<&'a TextureDesc>>,
     any_normals: bool,
+    /// Deposit factors ([`Prim::factor`]).
+    factor: Vec<f64>,
+    /// Whether every map is small enough for [`avx::deposit_values`] (sizes exact in f32,
+    /// `3·w·h` in i32); otherwise every deposit takes [`deposit`].
+    vector_deposits: bool,
 }
 
 impl<'a> LambertTable<'a> {
@@ -917,11 +924,19 @@ impl<'a> LambertTable<'a> {
             r[ROW_HAS_N] = flag(p.normals.is_some());
             r[ROW_TWO_SIDED] = flag(two_sided);
             r[ROW_BITMAP] = flag(p.kd_pi.is_none());
+            r[ROW_SIZE] = p.width as f32;
+            r[ROW_SIZE + 1] = p.height as f32;
             rows.push(Row(r));
             tex.push(p.kd_pi.is_none().then_some(t));
         }
         let any_normals = prims.iter().any(|p| p.normals.is_some());
-        Some(LambertTable { rows, tex, any_normals })
+        let factor = prims.iter().map(|p| p.factor).collect();
+        let vector_deposits = prims.iter().all(|p| {
+            p.width <= 1 << 16
+                && p.height <= 1 << 16
+                && 3 * p.width as u64 * p.height as u64 <= i32::MAX as u64
+        });
+        Some(LambertTable { rows, tex, any_normals, factor, vector_deposits })
     }
 }
 
@@ -978,6 +993,13 @@ impl<'a> Lanes<'a> {
     }
 }
 
+/// What [`avx::deposit_values`] computes.
+struct DepositLanes {
+    index: [i32; W],
+    value: [[i64; W]; 3],
+    exact: u32,
+}
+
 /// What [`avx::vertices`] computes besides the kernel's inputs.
 #[derive(Clone, Copy)]
 struct VertexLanes {
@@ -995,7 +1017,7 @@ struct VertexLanes {
 #[cfg(target_arch = "x86_64")]
 mod avx {
     use super::{PacketHits, RayPacket, Row, ScatterIn, VertexLanes, W};
-    use super::{ROW_BITMAP, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG, ROW_NG_OFF, ROW_TWO_SIDED, ROW_UV};
+    use super::{ROW_BITMAP, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG, ROW_NG_OFF, ROW_SIZE, ROW_TWO_SIDED, ROW_UV};
     use std::arch::x86_64::*;
 
     #[inline(always)]
@@ -1108,6 +1130,76 @@ mod avx {
         for c in 0..3 {
             st(&mut out.kd_pi[c], field(ROW_KD + c));
         }
+        out
+    }
+
+    /// The texel index `3·(y·w + x)` and the rounded units `round(β_c · factor)` of the
+    /// deposits of [`W`] vertices of triangles `prim` at `uv` (as [`super::deposit`]: the f32
+    /// products `u·w`, the truncation clamped to the map, the f64 products, ties away from
+    /// zero, truncation). `exact` = the lanes whose three unrounded values are below 2⁵¹ in
+    /// magnitude (so finite), for which the conversion to integers here is exact; the others
+    /// are left to `deposit`.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(super) fn deposit_values(
+        rows: &[Row],
+        factor: &[f64],
+        prim: &[u32; W],
+        uv: &[[f32; W]; 2],
+        beta: &[[f32; W]; 3],
+    ) -> super::DepositLanes {
+        assert!(prim.iter().all(|&p| (p as usize) < rows.len() && (p as usize) < factor.len()));
+        // SAFETY: 8 u32, unaligned load.
+        let idx = unsafe { _mm256_loadu_si256(prim.as_ptr().cast()) };
+        let base = rows.as_ptr().cast::<f32>();
+        let row = _mm256_slli_epi32::<5>(idx);
+        // SAFETY: row indices < rows.len() (asserted), offsets < 32: inside `rows`.
+        let field = |k: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(k), row) };
+        let (w, h) = (field(ROW_SIZE), field(ROW_SIZE + 1));
+        let zero = _mm256_setzero_ps();
+        let one = _mm256_set1_ps(1.0);
+        // `(u·w) as i64` clamped to [0, w − 1]: a NaN product gives 0 (max picks its second
+        // operand), larger values w − 1, negative ones 0.
+        let texel = |u: __m256, n: __m256| {
+            let x = _mm256_min_ps(_mm256_max_ps(_mm256_mul_ps(u, n), zero), _mm256_sub_ps(n, one));
+            _mm256_cvttps_epi32(x)
+        };
+        let (x, y) = (texel(ld(&uv[0]), w), texel(ld(&uv[1]), h));
+        let wi = _mm256_cvttps_epi32(w);
+        let index = _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(y, wi), x), _mm256_set1_epi32(3));
+        let mut out = super::DepositLanes { index: [0; W], value: [[0; W]; 3], exact: u32::MAX };
+        // SAFETY: 8 i32, unaligned store.
+        unsafe { _mm256_storeu_si256(out.index.as_mut_ptr().cast(), index) };
+        let magic = _mm256_set1_pd(6_755_399_441_055_744.0); // 1.5·2⁵²
+        let limit = _mm256_set1_pd(2_251_799_813_685_248.0); // 2⁵¹
+        let sign = _mm256_set1_pd(-0.0);
+        let half = _mm256_set1_pd(0.5);
+        for half_lanes in 0..2 {
+            let i4 = if half_lanes == 0 {
+                _mm256_castsi256_si128(idx)
+            } else {
+                _mm256_extracti128_si256::<1>(idx)
+            };
+            // SAFETY: indices < factor.len() (asserted).
+            let f = unsafe { _mm256_i32gather_pd::<8>(factor.as_ptr(), i4) };
+            for c in 0..3 {
+                // SAFETY: 4 floats of an 8-float array.
+                let b = unsafe { _mm_loadu_ps(beta[c].as_ptr().add(4 * half_lanes)) };
+                let q = _mm256_mul_pd(_mm256_cvtps_pd(b), f);
+                let r = _mm256_add_pd(q, _mm256_or_pd(half, _mm256_and_pd(q, sign)));
+                let fine = _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, r), limit);
+                let coarse = (!_mm256_movemask_pd(fine) & 0xf) as u32;
+                out.exact &= !(coarse << (4 * half_lanes));
+                let t = _mm256_round_pd::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(r);
+                let v = _mm256_sub_epi64(
+                    _mm256_castpd_si256(_mm256_add_pd(t, magic)),
+                    _mm256_castpd_si256(magic),
+                );
+                // SAFETY: 4 i64 of an 8-i64 array.
+                unsafe { _mm256_storeu_si256(out.value[c].as_mut_ptr().add(4 * half_lanes).cast(), v) };
+            }
+        }
+        out.exact &= (1 << W) - 1;
         out
     }
 
@@ -1276,10 +1368,25 @@ impl Wavefront {
                 let prim: [u32; W] =
                     std::array::from_fn(|l| if alive & (1 << l) != 0 { hits.prim[l] as u32 } else { 0 });
                 let v = avx::vertices(rows, &prim, &hits, &ln.rays.d, tab.any_normals, &mut inp);
-                for l in lanes_of(alive & v.front) {
-                    let pr = &ctx.prims[prim[l] as usize];
-                    let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
-                    deposit(ctx.sink, ctx.bad, s, pr, Vec2::new(v.uv[0][l], v.uv[1][l]), beta, ln.depth[l]);
+                let front = alive & v.front;
+                if front != 0 {
+                    let dv = if tab.vector_deposits {
+                        avx::deposit_values(rows, &tab.factor, &prim, &v.uv, &ln.beta)
+                    } else {
+                        DepositLanes { index: [0; W], value: [[0; W]; 3], exact: 0 }
+                    };
+                    for l in lanes_of(front) {
+                        let pr = &ctx.prims[prim[l] as usize];
+                        let depth = ln.depth[l];
+                        if dv.exact & (1 << l) == 0 {
+                            let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
+                            deposit(ctx.sink, ctx.bad, s, pr, Vec2::new(v.uv[0][l], v.uv[1][l]), beta, depth);
+                        } else if pr.factor > 0.0 && (depth > 1 || s.direct) {
+                            let value = [dv.value[0][l], dv.value[1][l], dv.value[2][l]];
+                            let (shape, index) = (pr.shape as usize, dv.index[l] as usize);
+                            ctx.sink.push(Pending { shape, index, direct: depth == 1, value });
+                        }
+                    }
                 }
                 if s.max_depth >= 0 {
                     alive &= !mask(|l| ln.depth[l] >= s.max_depth);
