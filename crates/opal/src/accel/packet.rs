@@ -172,8 +172,7 @@ impl PacketAccel {
         // agree and `t > 0`, `zero` = some edge function may be ±0 (see below).
         #[inline(always)]
         fn each<const K: usize>(f: impl FnMut(usize) -> __m256) -> [__m256; K] {
-            let mut f = f;
-            std::array::from_fn(|k| f(k))
+            std::array::from_fn(f)
         }
         let test = |cs: &[[Corner; 3]]| -> ([__m256; 2], [__m256; 2], [__m256; 2]) {
             let mut px = [[zero; 3]; 2];

@@ -127,7 +127,9 @@ impl<const N: usize> F<N> {
     pub fn to_i32(self) -> I<N> {
         I(lanes!(N, |i| {
             let x = self.0[i];
-            // clamped into the range (NaN becomes −2³¹ here and 0 below)
+            // clamped into the range; `f32::clamp` would keep a NaN, `max` turns it into −2³¹
+            // here (0 below), so the conversion is always defined
+            #[allow(clippy::manual_clamp)]
             let c = x.max(-2_147_483_648.0).min(2_147_483_520.0);
             // SAFETY: `c` is finite and within [−2³¹, 2³¹ − 128], so its truncation is an i32.
             let t = unsafe { c.to_int_unchecked::<i32>() };

@@ -1107,8 +1107,8 @@ mod avx {
         );
         let front = bits(_mm256_cmp_ps::<_CMP_GT_OQ>(dot, _mm256_setzero_ps()));
         inp.t = hits.t;
-        for c in 0..3 {
-            st(&mut inp.ng[c], ng[c]);
+        for (c, &n) in ng.iter().enumerate() {
+            st(&mut inp.ng[c], n);
             st(&mut inp.ng_off[c], field(ROW_NG_OFF + c));
         }
         if any_normals {
@@ -1182,9 +1182,9 @@ mod avx {
             };
             // SAFETY: indices < factor.len() (asserted).
             let f = unsafe { _mm256_i32gather_pd::<8>(factor.as_ptr(), i4) };
-            for c in 0..3 {
+            for (c, beta_c) in beta.iter().enumerate() {
                 // SAFETY: 4 floats of an 8-float array.
-                let b = unsafe { _mm_loadu_ps(beta[c].as_ptr().add(4 * half_lanes)) };
+                let b = unsafe { _mm_loadu_ps(beta_c.as_ptr().add(4 * half_lanes)) };
                 let q = _mm256_mul_pd(_mm256_cvtps_pd(b), f);
                 let r = _mm256_add_pd(q, _mm256_or_pd(half, _mm256_and_pd(q, sign)));
                 let fine = _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, r), limit);
