@@ -6,16 +6,21 @@
 //! independent rays at hand (the light tracer's wavefront, [`crate::integrator::light_tracer`])
 //! can instead put the *rays* in the lanes: every triangle is broadcast to all lanes and tested
 //! against the eight rays with the same watertight test, and each lane keeps its closest hit
-//! with a select. Successive triangles are independent work, so the CPU overlaps them.
+//! (its distance and the triangle's index, which sits in the padding of the triangle's first
+//! corner) with a select. Successive triangles are independent work; the loop computes two of
+//! them step by step side by side so the core overlaps their dependency chains. After the loop
+//! the barycentrics of each lane's winner are computed once from its gathered corners (the
+//! loop's operations, so the same bits as keeping them per triangle).
 //!
 //! **Same hits as [`super::TinyAccel`] and [`super::BruteForce`]**: per lane, the axis
 //! permutation and shear of [`super::TriRay`] (the permuted components of a broadcast corner are
 //! picked with one `vpermps` per axis), then `a_kx − S_x a_kz` etc., the edge functions, `det`,
 //! `t` and the barycentrics with the same operations in the same order (Rust never contracts to
 //! FMA). Triangles are visited in index order and a lane takes a hit only if it is strictly
-//! closer, so ties keep the lowest index. A lane in which some edge function is exactly zero
-//! (for any triangle) is recomputed by [`super::BruteForce`] (the scalar test with its f64
-//! fallback). Without AVX2 every lane takes the brute force.
+//! closer, so ties keep the lowest index. A lane in which some edge function may be exactly zero
+//! (for any triangle: `u·v·w` is ±0 or NaN, which also flags underflow, harmlessly) is
+//! recomputed by [`super::BruteForce`] (the scalar test with its f64 fallback). Without AVX2
+//! every lane takes the brute force.
 //!
 //! Tests: unit tests below (random soups of 1–64 triangles, the Cornell box with rays leaving
 //! its surfaces, zero-edge rays through shared corners, inactive lanes, ties).

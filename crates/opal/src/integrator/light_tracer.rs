@@ -41,20 +41,23 @@
 //! (the arithmetic of `Lambert::sample` and `BsdfSample::weight`, same random numbers as the
 //! generic `Scene::bsdf` path, which other materials take), and their albedo lookup is applied
 //! after the next ray is traced so its cache miss overlaps the traversal; deposits go through a
-//! short per-worker queue that prefetches their texel. When every material is Lambertian, eight
-//! paths advance together (`Wavefront`): one step traces the eight rays, runs the per-vertex
-//! bookkeeping lane by lane and scatters the eight vertices with one SIMD kernel, then refills
-//! finished lanes with the next paths — each path is bit for bit the one `trace_path` traces
-//! alone (its own generator, same operations), so only the order of the integer deposits
-//! changes. In scenes of up to `TINY_MAX` triangles the eight rays are traced together, one per
-//! SIMD lane ([`crate::accel::packet::PacketAccel`], same hits as
-//! [`crate::accel::TinyAccel`]); otherwise through `Scene::intersect_hit`.
+//! short per-worker queue that prefetches their texel. When every material is Lambertian and
+//! the CPU has AVX2, eight paths advance together (`Wavefront`, state as structure of arrays):
+//! one step traces the eight rays, applies the pending weights, gathers the hit triangles'
+//! data, computes the deposits' texels and integer units and scatters the eight vertices in
+//! SIMD (the roulette, the random numbers and the queue pushes stay per lane), then refills
+//! finished lanes from path starts prepared eight at a time (triangle lights in SIMD) — each
+//! path is bit for bit the one `trace_path` traces alone (its own generator, same operations),
+//! so only the order of the integer deposits changes. In scenes of up to `TINY_MAX` triangles
+//! the eight rays are traced together, one per SIMD lane
+//! ([`crate::accel::packet::PacketAccel`], same hits as [`crate::accel::TinyAccel`]);
+//! otherwise through `Scene::intersect_hit`.
 //!
 //! Tests (below): a quad under a point light (E = I cos θ / d², analytic) and a quad under a
 //! small area light against a quadrature of ∫ L cos dω; indirect light in a closed furnace-like
 //! box against the path tracer's estimate; thread-count independence; the fast paths and the
-//! fixed-point sums against the generic f64 pass (a bitmap-textured floor, a two-sided wall,
-//! Russian roulette) to 10⁻⁶, identical for 1, 2 and 3 threads and for the three engines
+//! fixed-point sums against the generic f64 pass (a bitmap-textured floor, a two-sided wall
+//! with corner normals, Russian roulette, an area and a point light) to 10⁻⁶, identical for 1, 2 and 3 threads and for the three engines
 //! (wavefront with ray packets, wavefront with one ray per lane, one path at a time); the `i32` cells with spill
 //! against plain `i64` sums (random deposits up to 2⁴⁰ units); `direct: false` leaves the
 //! indirect map bitwise unchanged.
