@@ -783,13 +783,52 @@ struct ScatterOut {
     valid: [u32; W],
 }
 
+/// `square_to_cosine_hemisphere(u)` on [`W`] lanes (concentric map with
+/// `fastmath::sincos_2pi`, selects for its branches): `[x, y, z]`, the same bits per lane.
+#[inline(always)]
+fn cosine_hemisphere_lanes(
+    ux: crate::fastmath::wide::F<W>,
+    uy: crate::fastmath::wide::F<W>,
+) -> [crate::fastmath::wide::F<W>; 3] {
+    use crate::fastmath::wide::{self, F};
+    let zero = F::<W>::splat(0.0);
+    let ox = 2.0 * ux - 1.0;
+    let oy = 2.0 * uy - 1.0;
+    let at_centre = ox.eq(zero) & oy.eq(zero);
+    let wide_x = ox.abs().gt(oy.abs());
+    let r = wide_x.select(ox, oy);
+    let turns = wide_x.select((oy / ox) * 0.125, 0.25 - (ox / oy) * 0.125);
+    let (sn, cs) = wide::sincos_2pi(turns);
+    let dx = at_centre.select(zero, r * cs);
+    let dy = at_centre.select(zero, r * sn);
+    [dx, dy, (1.0 - (dx * dx + dy * dy)).max(zero).sqrt()]
+}
+
+/// [`super::offset_ray_origin`]`(p, n, dir)` on [`W`] lanes, `n_off` being the normal's
+/// `normalize_or_zero` (the same bits per lane).
+#[inline(always)]
+fn offset_lanes(
+    p: [crate::fastmath::wide::F<W>; 3],
+    n_off: [crate::fastmath::wide::F<W>; 3],
+    dir: [crate::fastmath::wide::F<W>; 3],
+) -> [crate::fastmath::wide::F<W>; 3] {
+    let pa = [p[0].abs(), p[1].abs(), p[2].abs()];
+    let mx = pa[1].gt(pa[2]).select(pa[1], pa[2]);
+    let mx = pa[0].gt(mx).select(pa[0], mx);
+    let mag = (1.0 + mx) * crate::accel::triangle::RAY_OFFSET_SCALE;
+    let towards = ((n_off[0] * dir[0] + n_off[1] * dir[1]) + n_off[2] * dir[2])
+        .ge(crate::fastmath::wide::F::splat(0.0));
+    let mag = towards.select(mag, -mag);
+    std::array::from_fn(|c| p[c] + n_off[c] * mag)
+}
+
 /// The Lambertian scattering of [`trace_path`] on [`W`] lanes: the same operations in the same
 /// order (`glam`'s component formulas, [`Frame::from_normal`], the concentric map with
 /// `fastmath::sincos_2pi`, [`super::offset_ray_origin`]), with selects for branches, hence the
 /// same bits in every lane (no fused multiply-add is ever formed).
 #[inline(always)]
 fn scatter_lanes<const NORMALS: bool>(rays: &RayPacket, i: &ScatterIn) -> ScatterOut {
-    use crate::fastmath::wide::{self, F, M};
+    use crate::fastmath::wide::{F, M};
     type V = [F<W>; 3];
     let ld = |a: &[[f32; W]; 3]| -> V { [F(a[0]), F(a[1]), F(a[2])] };
     let dot = |a: V, b: V| (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2];
@@ -821,31 +860,16 @@ fn scatter_lanes<const NORMALS: bool>(rays: &RayPacket, i: &ScatterIn) -> Scatte
     let fs: V = [1.0 + sign * n[0] * n[0] * a, sign * bb, -sign * n[0]];
     let ft: V = [bb, sign + n[1] * n[1] * a, -n[1]];
     let mut valid = dot(wo, n).gt(zero);
-    // square_to_cosine_hemisphere (concentric map)
-    let ox = 2.0 * F(i.u[0]) - 1.0;
-    let oy = 2.0 * F(i.u[1]) - 1.0;
-    let at_centre = ox.eq(zero) & oy.eq(zero);
-    let wide_x = ox.abs().gt(oy.abs());
-    let r = wide_x.select(ox, oy);
-    let turns = wide_x.select((oy / ox) * 0.125, 0.25 - (ox / oy) * 0.125);
-    let (sn, cs) = wide::sincos_2pi(turns);
-    let dx = at_centre.select(zero, r * cs);
-    let dy = at_centre.select(zero, r * sn);
-    let z = (1.0 - (dx * dx + dy * dy)).max(zero).sqrt();
+    let [dx, dy, z] = cosine_hemisphere_lanes(F(i.u[0]), F(i.u[1]));
     let pdf = z.gt(zero).select(z * crate::math::INV_PI, zero);
     valid = valid & pdf.gt(zero);
     let ratio = z.abs() / pdf;
     // Frame::to_world
     let dir: V = std::array::from_fn(|c| (fs[c] * dx + ft[c] * dy) + n[c] * z);
-    // offset_ray_origin(p, ng, dir)
-    let pa = [p[0].abs(), p[1].abs(), p[2].abs()];
-    let mx = pa[1].gt(pa[2]).select(pa[1], pa[2]);
-    let mx = pa[0].gt(mx).select(pa[0], mx);
-    let mag = (1.0 + mx) * crate::accel::triangle::RAY_OFFSET_SCALE;
-    let mag = dot(ng_off, dir).ge(zero).select(mag, -mag);
+    let o = offset_lanes(p, ng_off, dir);
     let mut out = ScatterOut::default();
     for c in 0..3 {
-        out.o[c] = (p[c] + ng_off[c] * mag).0;
+        out.o[c] = o[c].0;
         out.d[c] = dir[c].0;
     }
     out.ratio = ratio.0;
@@ -1486,7 +1510,7 @@ struct StartOut {
 /// branches), hence the same bits.
 #[inline(always)]
 fn start_lanes(i: &StartIn) -> StartOut {
-    use crate::fastmath::wide::{self, F};
+    use crate::fastmath::wide::F;
     type V = [F<W>; 3];
     let ld = |a: &[[f32; W]; 3]| -> V { [F(a[0]), F(a[1]), F(a[2])] };
     let zero = F::<W>::splat(0.0);
@@ -1501,17 +1525,7 @@ fn start_lanes(i: &StartIn) -> StartOut {
     let w0 = 1.0 - b0 - b1;
     let (p0, p1, p2) = (ld(&i.p[0]), ld(&i.p[1]), ld(&i.p[2]));
     let o: V = std::array::from_fn(|c| p0[c] * w0 + p1[c] * b0 + p2[c] * b1);
-    // square_to_cosine_hemisphere (concentric map)
-    let ox = 2.0 * F(i.u_dir[0]) - 1.0;
-    let oy = 2.0 * F(i.u_dir[1]) - 1.0;
-    let at_centre = ox.eq(zero) & oy.eq(zero);
-    let wide_x = ox.abs().gt(oy.abs());
-    let r = wide_x.select(ox, oy);
-    let turns = wide_x.select((oy / ox) * 0.125, 0.25 - (ox / oy) * 0.125);
-    let (sn, cs) = wide::sincos_2pi(turns);
-    let dx = at_centre.select(zero, r * cs);
-    let dy = at_centre.select(zero, r * sn);
-    let z = (1.0 - (dx * dx + dy * dy)).max(zero).sqrt();
+    let [dx, dy, z] = cosine_hemisphere_lanes(F(i.u_dir[0]), F(i.u_dir[1]));
     // Frame::to_world
     let (fs, ft, fnn) = (ld(&i.s), ld(&i.t), ld(&i.n));
     let dir: V = std::array::from_fn(|c| (fs[c] * dx + ft[c] * dy) + fnn[c] * z);
@@ -1522,16 +1536,10 @@ fn start_lanes(i: &StartIn) -> StartOut {
     let cos = ((dir[0] * n[0] + dir[1] * n[1]) + dir[2] * n[2]).abs();
     let k = cos / (pmf * pdf_pos * pdf_dir);
     let le = ld(&i.le);
-    // offset_ray_origin(o, n, dir)
-    let n_off = ld(&i.n_off);
-    let pa = [o[0].abs(), o[1].abs(), o[2].abs()];
-    let mx = pa[1].gt(pa[2]).select(pa[1], pa[2]);
-    let mx = pa[0].gt(mx).select(pa[0], mx);
-    let mag = (1.0 + mx) * crate::accel::triangle::RAY_OFFSET_SCALE;
-    let mag = ((n_off[0] * dir[0] + n_off[1] * dir[1]) + n_off[2] * dir[2]).ge(zero).select(mag, -mag);
+    let origin = offset_lanes(o, ld(&i.n_off), dir);
     let mut out = StartOut::default();
     for c in 0..3 {
-        out.o[c] = (o[c] + n_off[c] * mag).0;
+        out.o[c] = origin[c].0;
         out.d[c] = dir[c].0;
         out.beta[c] = (le[c] * k).0;
     }
