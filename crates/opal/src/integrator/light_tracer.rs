@@ -362,8 +362,11 @@ fn trace_fixed(
     let stream = RngStream::new(s.seed, RNG_STREAM);
     // Scenes whose every triangle is Lambertian advance eight paths at a time (same paths,
     // same numbers, same bits as one at a time: see `Wavefront`).
-    let wavefront =
-        if engine == Engine::Scalar || !Wavefront::available() { None } else { LambertTable::new(&prims) };
+    let wavefront = if engine == Engine::Scalar || !Wavefront::available() {
+        None
+    } else {
+        LambertTable::new(scene, &prims)
+    };
     // Small scenes: the wavefront's eight rays are traced together, one per SIMD lane.
     let packet = if wavefront.is_some() && engine == Engine::Auto { scene.packet() } else { None };
     let results: Vec<(Acc, u64)> = (0..workers)
@@ -654,7 +657,7 @@ fn vertex<'p, 'a>(
     let b0 = 1.0 - h.b1 - h.b2;
     let uv = pr.uv[0] * b0 + pr.uv[1] * h.b1 + pr.uv[2] * h.b2;
     if (-st.ray.d).dot(pr.ng) > 0.0 {
-        deposit(ctx.sink, ctx.bad, s, pr, uv, st.beta, st.depth);
+        deposit(ctx.sink, ctx.bad, s, pr, uv, st.beta, st.depth, None);
     }
     if s.max_depth >= 0 && st.depth >= s.max_depth {
         return None;
@@ -664,7 +667,9 @@ fn vertex<'p, 'a>(
 
 /// The deposit of a path of weight `beta` reaching the front side of triangle `pr` at `uv` as
 /// its vertex number `depth` (none for triangles without a map and, unless `s.direct`, for
-/// first hits); a non-finite weight is counted in `bad` instead.
+/// first hits); a non-finite weight is counted in `bad` instead. `pre` = the texel index and
+/// integer units already computed (by [`avx::deposit_values`]), else they are computed here.
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn deposit(
     sink: &mut Sink,
@@ -674,8 +679,13 @@ fn deposit(
     uv: Vec2,
     beta: Spectrum,
     depth: i32,
+    pre: Option<(usize, [i64; 3])>,
 ) {
     if !(pr.factor > 0.0 && (depth > 1 || s.direct)) {
+        return;
+    }
+    if let Some((index, value)) = pre {
+        sink.push(Pending { shape: pr.shape as usize, index, direct: depth == 1, value });
         return;
     }
     let (w, hgt) = (pr.width as usize, pr.height as usize);
@@ -925,11 +935,13 @@ struct LambertTable<'a> {
     /// Whether every map is small enough for [`avx::deposit_values`] (sizes exact in f32,
     /// `3·w·h` in i32); otherwise every deposit takes [`deposit`].
     vector_deposits: bool,
+    /// The scene's lights as the path starts need them ([`light_rows`]).
+    lights: Vec<Option<LightRow>>,
 }
 
 impl<'a> LambertTable<'a> {
     /// `None` unless every triangle is Lambertian.
-    fn new(prims: &[Prim<'a>]) -> Option<LambertTable<'a>> {
+    fn new(scene: &Scene, prims: &[Prim<'a>]) -> Option<LambertTable<'a>> {
         let flag = |b: bool| f32::from_bits(if b { u32::MAX } else { 0 });
         let mut rows = Vec::with_capacity(prims.len());
         let mut tex = Vec::with_capacity(prims.len());
@@ -963,7 +975,7 @@ impl<'a> LambertTable<'a> {
                 && p.height <= 1 << 16
                 && 3 * p.width as u64 * p.height as u64 <= i32::MAX as u64
         });
-        Some(LambertTable { rows, tex, any_normals, factor, vector_deposits })
+        Some(LambertTable { rows, tex, any_normals, factor, vector_deposits, lights: light_rows(scene) })
     }
 }
 
@@ -1263,6 +1275,13 @@ mod avx {
     fn kernel<const NORMALS: bool>(rays: &RayPacket, inp: &ScatterIn) -> super::ScatterOut {
         super::scatter_lanes::<NORMALS>(rays, inp)
     }
+
+    /// [`super::start_lanes`] compiled with AVX2, kept out of line like [`kernel`].
+    #[target_feature(enable = "avx2")]
+    #[inline(never)]
+    pub(super) fn start_kernel(inp: &super::StartIn) -> super::StartOut {
+        super::start_lanes(inp)
+    }
 }
 
 impl Wavefront {
@@ -1319,7 +1338,6 @@ impl Wavefront {
         };
         let mut next = paths.start;
         // the starts of the next paths, prepared W at a time; `taken` of them handed out
-        let lights = light_rows(scene);
         let mut block: [Option<PathState<'a>>; W] = std::array::from_fn(|_| None);
         let mut taken = W;
         // lane `l` takes the next path of the batch that carries something, or turns inactive
@@ -1330,7 +1348,7 @@ impl Wavefront {
                         break;
                     }
                     let end = (next + W as u64).min(paths.end);
-                    block = starts(scene, sampler, &lights, stream, next..end, true);
+                    block = starts(scene, sampler, &tab.lights, stream, next..end);
                     next = end;
                     taken = 0;
                 }
@@ -1404,15 +1422,12 @@ impl Wavefront {
                     };
                     for l in lanes_of(front) {
                         let pr = &ctx.prims[prim[l] as usize];
-                        let depth = ln.depth[l];
-                        if dv.exact & (1 << l) == 0 {
-                            let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
-                            deposit(ctx.sink, ctx.bad, s, pr, Vec2::new(v.uv[0][l], v.uv[1][l]), beta, depth);
-                        } else if pr.factor > 0.0 && (depth > 1 || s.direct) {
-                            let value = [dv.value[0][l], dv.value[1][l], dv.value[2][l]];
-                            let (shape, index) = (pr.shape as usize, dv.index[l] as usize);
-                            ctx.sink.push(Pending { shape, index, direct: depth == 1, value });
-                        }
+                        let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
+                        let pre = (dv.exact & (1 << l) != 0).then(|| {
+                            (dv.index[l] as usize, [dv.value[0][l], dv.value[1][l], dv.value[2][l]])
+                        });
+                        let uv = Vec2::new(v.uv[0][l], v.uv[1][l]);
+                        deposit(ctx.sink, ctx.bad, s, pr, uv, beta, ln.depth[l], pre);
                     }
                 }
                 if s.max_depth >= 0 {
@@ -1550,13 +1565,14 @@ fn start_lanes(i: &StartIn) -> StartOut {
 /// The path starts of the indices `range` (at most [`W`]), in order; `None` where
 /// [`start_path`] gives `None` (same paths, same bits: triangle lights through
 /// [`start_lanes`], other lights through `start_path` itself).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
 fn starts<'a>(
     scene: &Scene,
     sampler: &crate::light::LightSampler,
     lights: &[Option<LightRow>],
     stream: &RngStream,
     range: std::ops::Range<u64>,
-    avx: bool,
 ) -> [Option<PathState<'a>>; W] {
     let mut out: [Option<PathState<'a>>; W] = std::array::from_fn(|_| None);
     let mut inp = StartIn::default();
@@ -1587,7 +1603,7 @@ fn starts<'a>(
         inp.u_dir[1][l] = u_dir.y;
         rngs[l] = Some(rng);
     }
-    let o = start_kernel(avx)(&inp);
+    let o = avx::start_kernel(&inp);
     for (l, rng) in rngs.into_iter().enumerate() {
         let Some(rng) = rng else { continue };
         if o.valid[l] == 0 {
@@ -1599,23 +1615,6 @@ fn starts<'a>(
         out[l] = Some(PathState { rng, ray, beta, b0: beta.max_component(), depth: 0, pending: None });
     }
     out
-}
-
-/// [`start_lanes`] compiled for this CPU (AVX2 when `avx`; same bits either way).
-fn start_kernel(avx: bool) -> fn(&StartIn) -> StartOut {
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx2")]
-        fn avx2(i: &StartIn) -> StartOut {
-            start_lanes(i)
-        }
-        if avx {
-            // SAFETY: `avx` is set only when the CPU supports AVX2.
-            return |i| unsafe { avx2(i) };
-        }
-    }
-    let _ = avx;
-    start_lanes
 }
 
 /// Mask of the lanes where `f(l)` holds.
