@@ -1,13 +1,15 @@
 //! Microbenchmark of `TinyAccel` closest hits on the Cornell box (`scenes::cornell_box`): the
-//! branch-free search (`intersect`) against the group-by-group loop (`intersect_sequential`),
+//! branch-free search (`intersect`) against the group-by-group loop (`intersect_sequential`) and
+//! eight rays at once (`PacketAccel::intersect_lanes`, consecutive rays in a packet),
 //! interleaved in one process, on two ray sets: random origins and directions inside the room,
 //! and rays leaving the walls and box faces with cosine-distributed directions (what the light
-//! tracer traces). First checks that both give the same hits as `BruteForce`. Prints the median
+//! tracer traces). First checks that all three give the same hits as `BruteForce`. Prints the median
 //! ns per ray of `reps` runs each. To compare two versions of `TinyAccel`, copy the old
 //! `accel/tiny.rs` next to this file as a module and add it as a third mode.
 //!
 //! Run: `cargo run --release -p opal --example tiny_rays [reps]`.
 
+use opal::accel::packet::{PACKET, PacketAccel, RayPacket};
 use opal::accel::{BruteForce, TinyAccel, offset_ray_origin};
 use opal::geometry::Ray;
 use opal::math::{Frame, Vec3};
@@ -74,6 +76,7 @@ fn main() {
     let tris = opal::accel::scenes::cornell_box();
     let a = TinyAccel::new(tris.clone());
     let b = BruteForce::new(tris.clone());
+    let pa = PacketAccel::new(tris.clone());
     for (name, rays) in [("inside", random_inside()), ("surface", from_surfaces(&tris))] {
         let mut hits = 0usize;
         for r in &rays {
@@ -82,13 +85,43 @@ fn main() {
             assert_eq!(a.intersect_sequential(r), h, "{r:?}");
             hits += h.is_some() as usize;
         }
+        let packets: Vec<RayPacket> = rays
+            .chunks(PACKET)
+            .map(|c| {
+                let mut p = RayPacket::default();
+                for (l, r) in c.iter().enumerate() {
+                    p.set(l, r);
+                }
+                p
+            })
+            .collect();
+        for (p, c) in packets.iter().zip(rays.chunks(PACKET)) {
+            let h = pa.intersect(p);
+            for (l, r) in c.iter().enumerate() {
+                assert_eq!(h[l], b.intersect(r), "{r:?}");
+            }
+        }
         println!("{name}: {:.3} of the rays hit; identical hits", hits as f64 / rays.len() as f64);
-        let mut times = [Vec::new(), Vec::new()];
+        let mut times = [Vec::new(), Vec::new(), Vec::new()];
         for _ in 0..reps {
             for (mode, times) in times.iter_mut().enumerate() {
                 let t0 = Instant::now();
                 let mut s = 0.0f64;
                 let mut n = 0u64;
+                if mode == 2 {
+                    for p in &packets {
+                        let h = pa.intersect_lanes(p);
+                        for l in 0..PACKET {
+                            if h.prim[l] >= 0 {
+                                s += h.t[l] as f64;
+                                n += h.prim[l] as u64;
+                            }
+                        }
+                    }
+                    std::hint::black_box((s, n));
+                    times.push(t0.elapsed().as_secs_f64() * 1e9 / rays.len() as f64);
+                    continue;
+                }
                 for r in &rays {
                     let h = if mode == 0 { a.intersect(r) } else { a.intersect_sequential(r) };
                     if let Some(h) = h {
@@ -100,7 +133,7 @@ fn main() {
                 times.push(t0.elapsed().as_secs_f64() * 1e9 / rays.len() as f64);
             }
         }
-        let names = ["intersect", "sequential"];
+        let names = ["intersect", "sequential", "packet"];
         for (t, nm) in times.iter_mut().zip(names) {
             t.sort_by(f64::total_cmp);
             let v: Vec<String> = t.iter().map(|x| format!("{x:.1}")).collect();

@@ -4,13 +4,16 @@
 //! ray then pays a chain of dependent operations (set-up, the groups, a horizontal minimum, the
 //! extraction of the winning lane) that leaves most of the core idle. Code that has eight
 //! independent rays at hand (the light tracer's wavefront, [`crate::integrator::light_tracer`])
-//! can instead put the *rays* in the lanes: every triangle is broadcast to all lanes and tested
-//! against the eight rays with the same watertight test, and each lane keeps its closest hit
-//! (its distance and the triangle's index, which sits in the padding of the triangle's first
-//! corner) with a select. Successive triangles are independent work; the loop computes two of
-//! them step by step side by side so the core overlaps their dependency chains. After the loop
-//! the barycentrics of each lane's winner are computed once from its gathered corners (the
-//! loop's operations, so the same bits as keeping them per triangle).
+//! can instead put the *rays* in the lanes: every triangle is tested against the eight rays with
+//! the same watertight test, and each lane keeps its closest hit (its distance and the
+//! triangle's index) with a select. The test's first half, the shear of a corner into the ray's
+//! frame, depends on the corner only: it is done once per *distinct* corner of a group of up to
+//! 64 triangles (corners compared by their bits; a mesh's corners are shared by about six
+//! triangles, the Cornell box's 32 triangles have 28 distinct corners instead of 96) into a
+//! scratch buffer on the stack, and the triangle loop then reads its three sheared corners from
+//! there — fewer operations, and no per-ray constant left in registers during that loop. After
+//! the loop the barycentrics of each lane's winner are computed once from its gathered corners
+//! (the loop's operations, so the same bits as keeping them per triangle).
 //!
 //! **Same hits as [`super::TinyAccel`] and [`super::BruteForce`]**: per lane, the axis
 //! permutation and shear of [`super::TriRay`] (the permuted components of a broadcast corner are
@@ -22,8 +25,10 @@
 //! recomputed by [`super::BruteForce`] (the scalar test with its f64 fallback). Without AVX2
 //! every lane takes the brute force.
 //!
-//! Tests: unit tests below (random soups of 1–64 triangles, the Cornell box with rays leaving
-//! its surfaces, zero-edge rays through shared corners, inactive lanes, ties).
+//! Tests: unit tests below (random soups of 1–64 triangles, a mesh of 160 triangles with shared
+//! corners over three groups, the Cornell box with rays leaving its surfaces, zero-edge rays
+//! through shared corners, inactive lanes, ties); `examples/tiny_rays.rs` times it against
+//! [`super::TinyAccel`].
 
 use super::{BruteForce, Hit};
 use crate::geometry::Ray;
@@ -67,10 +72,26 @@ impl RayPacket {
 #[repr(C, align(16))]
 struct Corner([f32; 4]);
 
+/// Triangles per [`Group`]: at most `3 · GROUP` distinct corners, transformed into a scratch
+/// buffer on the stack (96 bytes per corner).
+const GROUP: usize = 64;
+
+/// Consecutive triangles `first..first + tris.len()` and their distinct corners.
+#[derive(Clone, Debug)]
+struct Group {
+    /// The distinct corners (by bit pattern) of the group's triangles.
+    verts: Vec<Corner>,
+    /// Per triangle: the indices of its three corners in `verts`, and the triangle's index in
+    /// the soup (its bits).
+    tris: Vec<[u32; 4]>,
+}
+
 /// Tiny triangle soup for [`RayPacket`] queries (see the module docs).
 #[derive(Clone, Debug)]
 pub struct PacketAccel {
+    /// The corners of each triangle (the winners' barycentrics are computed from them).
     corners: Vec<[Corner; 3]>,
+    groups: Vec<Group>,
     /// The scalar test for lanes with a zero edge function and CPUs without AVX2.
     brute: BruteForce,
 }
@@ -79,17 +100,30 @@ impl PacketAccel {
     /// Wraps a triangle soup (the cost per packet is linear in the triangle count: meant for a
     /// few dozen).
     pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
-        // the first corner's padding holds the triangle's index (its bits), broadcast by the loop
-        let corners = tris
-            .iter()
-            .enumerate()
-            .map(|(i, t)| {
-                let mut c = t.map(|p| Corner([p.x, p.y, p.z, 0.0]));
-                c[0].0[3] = f32::from_bits(i as u32);
-                c
-            })
-            .collect();
-        PacketAccel { corners, brute: BruteForce::new(tris) }
+        let corners = tris.iter().map(|t| t.map(|p| Corner([p.x, p.y, p.z, 0.0]))).collect();
+        let mut groups = Vec::new();
+        for (g, chunk) in tris.chunks(GROUP).enumerate() {
+            let mut verts: Vec<Corner> = Vec::new();
+            let mut index = std::collections::HashMap::new();
+            let tris = chunk
+                .iter()
+                .enumerate()
+                .map(|(k, t)| {
+                    let mut e = [0u32; 4];
+                    for (c, p) in t.iter().enumerate() {
+                        let key = [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+                        e[c] = *index.entry(key).or_insert_with(|| {
+                            verts.push(Corner([p.x, p.y, p.z, 0.0]));
+                            verts.len() as u32 - 1
+                        });
+                    }
+                    e[3] = (g * GROUP + k) as u32;
+                    e
+                })
+                .collect();
+            groups.push(Group { verts, tris });
+        }
+        PacketAccel { corners, groups, brute: BruteForce::new(tris) }
     }
 
     /// Number of triangles.
@@ -129,6 +163,7 @@ impl PacketAccel {
     #[inline]
     pub(crate) fn intersect_avx2(&self, rays: &RayPacket) -> PacketHits {
         use std::arch::x86_64::*;
+        use std::mem::MaybeUninit;
         if self.corners.is_empty() {
             return PacketHits::NONE;
         }
@@ -171,87 +206,61 @@ impl PacketAccel {
         let mut best_t = ldf(&rays.tmax);
         let mut best_i = _mm256_set1_ps(f32::from_bits(u32::MAX)); // -1: no hit
         let mut zany = zero;
-        // `K` triangles against the eight rays, each step done for all `K` before the next
-        // (independent dependency chains side by side in the instruction stream, so the core
-        // overlaps them): per triangle `(t, ok, zero)` with `ok` = the edge functions' signs
-        // agree and `t > 0`, `zero` = some edge function may be ±0 (see below).
-        #[inline(always)]
-        fn each<const K: usize>(f: impl FnMut(usize) -> __m256) -> [__m256; K] {
-            std::array::from_fn(f)
-        }
-        let test = |cs: &[[Corner; 3]]| -> ([__m256; 2], [__m256; 2], [__m256; 2]) {
-            let mut px = [[zero; 3]; 2];
-            let mut py = [[zero; 3]; 2];
-            let mut pz = [[zero; 3]; 2];
-            for v in 0..3 {
+        // The sheared corners `(px, py, pz)` of a group, per lane, computed once per distinct
+        // corner: a corner shared by several triangles gives each of them the same bits.
+        let mut sheared = [const { MaybeUninit::<[__m256; 3]>::uninit() }; 3 * GROUP];
+        for g in &self.groups {
+            for (slot, c) in sheared.iter_mut().zip(&g.verts) {
                 // SAFETY: `Corner` is 16-byte aligned and holds 4 floats.
-                let p: [__m256; 2] =
-                    each(|k| unsafe { _mm256_broadcast_ps(&*(cs[k][v].0.as_ptr() as *const __m128)) });
+                let p = unsafe { _mm256_broadcast_ps(&*(c.0.as_ptr() as *const __m128)) };
                 // both 128-bit halves hold the corner: an in-lane permute picks axis k per lane
-                let az: [__m256; 2] = each(|k| _mm256_sub_ps(_mm256_permutevar_ps(p[k], ikz), oz));
-                let ax: [__m256; 2] = each(|k| _mm256_sub_ps(_mm256_permutevar_ps(p[k], ikx), ox));
-                let ay: [__m256; 2] = each(|k| _mm256_sub_ps(_mm256_permutevar_ps(p[k], iky), oy));
-                for k in 0..2 {
-                    px[k][v] = _mm256_sub_ps(ax[k], _mm256_mul_ps(sx, az[k]));
-                }
-                for k in 0..2 {
-                    py[k][v] = _mm256_sub_ps(ay[k], _mm256_mul_ps(sy, az[k]));
-                }
-                for k in 0..2 {
-                    pz[k][v] = _mm256_mul_ps(sz, az[k]);
-                }
+                let az = _mm256_sub_ps(_mm256_permutevar_ps(p, ikz), oz);
+                let ax = _mm256_sub_ps(_mm256_permutevar_ps(p, ikx), ox);
+                let ay = _mm256_sub_ps(_mm256_permutevar_ps(p, iky), oy);
+                slot.write([
+                    _mm256_sub_ps(ax, _mm256_mul_ps(sx, az)),
+                    _mm256_sub_ps(ay, _mm256_mul_ps(sy, az)),
+                    _mm256_mul_ps(sz, az),
+                ]);
             }
-            let edge = |k: usize, a: usize, b: usize| {
-                _mm256_sub_ps(_mm256_mul_ps(px[k][a], py[k][b]), _mm256_mul_ps(py[k][a], px[k][b]))
-            };
-            let u: [__m256; 2] = each(|k| edge(k, 2, 1));
-            let v: [__m256; 2] = each(|k| edge(k, 0, 2));
-            let w: [__m256; 2] = each(|k| edge(k, 1, 0));
-            // Some edge function exactly ±0 ⇒ the product u·v·w is ±0 or NaN (0·∞), which the
-            // unordered comparison catches; an underflowing product or a NaN input also flags
-            // the lane, which then merely takes the exact scalar path.
-            let z =
-                each(|k| _mm256_cmp_ps::<_CMP_EQ_UQ>(_mm256_mul_ps(_mm256_mul_ps(u[k], v[k]), w[k]), zero));
-            // Lanes with a zero edge function are recomputed by the scalar loop, so here u, v, w
-            // are non-zero: mixed signs ⇔ the sign bits differ (`TriRay`'s test for such
-            // values). Then `det ≠ 0`, and `TriRay`'s check `(tt > 0) == (det > 0)` only rejects
-            // lanes with `t = tt · (1/det) ≤ 0` or NaN, which `t > 0` rejects as well.
-            let mixed: [__m256; 2] =
-                each(|k| _mm256_or_ps(_mm256_xor_ps(u[k], v[k]), _mm256_xor_ps(u[k], w[k])));
-            let det: [__m256; 2] = each(|k| _mm256_add_ps(_mm256_add_ps(u[k], v[k]), w[k]));
-            let inv: [__m256; 2] = each(|k| _mm256_div_ps(one, det[k]));
-            let tt: [__m256; 2] = each(|k| {
-                _mm256_add_ps(
-                    _mm256_add_ps(_mm256_mul_ps(u[k], pz[k][0]), _mm256_mul_ps(v[k], pz[k][1])),
-                    _mm256_mul_ps(w[k], pz[k][2]),
-                )
-            });
-            let t: [__m256; 2] = each(|k| _mm256_mul_ps(tt[k], inv[k]));
-            // sign bit set where the signs agree and t > 0 (blends look at the sign bit only)
-            let ok = each(|k| _mm256_andnot_ps(mixed[k], _mm256_cmp_ps::<_CMP_GT_OQ>(t[k], zero)));
-            (t, ok, z)
-        };
-        // A lane takes a triangle if it is strictly closer than the best so far (`best_t`
-        // starts at tmax and only decreases): triangles in index order, ties keep the lowest.
-        let mut take = |t, ok, c: &[Corner; 3]| {
-            let take = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, best_t));
-            best_t = _mm256_blendv_ps(best_t, t, take);
-            best_i = _mm256_blendv_ps(best_i, _mm256_broadcast_ss(&c[0].0[3]), take);
-        };
-        // two triangles per iteration: two independent dependency chains side by side, so the
-        // core overlaps them (one chain alone leaves it waiting on the division)
-        let mut pairs = self.corners.chunks_exact(2);
-        for pair in &mut pairs {
-            let (t, ok, z) = test(pair);
-            zany = _mm256_or_ps(zany, _mm256_or_ps(z[0], z[1]));
-            take(t[0], ok[0], &pair[0]);
-            take(t[1], ok[1], &pair[1]);
-        }
-        if let [c] = pairs.remainder() {
-            // the odd last triangle, paired with itself (its second result is ignored)
-            let (t, ok, z) = test(&[*c, *c]);
-            zany = _mm256_or_ps(zany, z[0]);
-            take(t[0], ok[0], c);
+            for tri in &g.tris {
+                // SAFETY: the group's corner indices are below `verts.len()` ≤ 3·GROUP, and the
+                // loop above wrote those slots.
+                let [a, b, c] =
+                    [0, 1, 2].map(|k| unsafe { sheared.get_unchecked(tri[k] as usize).assume_init() });
+                let [px, py, pz] = [0, 1, 2].map(|k| [a[k], b[k], c[k]]);
+                let edge = |i: usize, j: usize| {
+                    _mm256_sub_ps(_mm256_mul_ps(px[i], py[j]), _mm256_mul_ps(py[i], px[j]))
+                };
+                let (u, v, w) = (edge(2, 1), edge(0, 2), edge(1, 0));
+                // Some edge function exactly ±0 ⇒ the product u·v·w is ±0 or NaN (0·∞), which
+                // the unordered comparison catches; an underflowing product or a NaN input also
+                // flags the lane, which then merely takes the exact scalar path.
+                let z = _mm256_cmp_ps::<_CMP_EQ_UQ>(_mm256_mul_ps(_mm256_mul_ps(u, v), w), zero);
+                zany = _mm256_or_ps(zany, z);
+                // Lanes with a zero edge function are recomputed by the scalar loop, so here u,
+                // v, w are non-zero: mixed signs ⇔ the sign bits differ (`TriRay`'s test for
+                // such values). Then `det ≠ 0`, and `TriRay`'s check `(tt > 0) == (det > 0)`
+                // only rejects lanes with `t = tt · (1/det) ≤ 0` or NaN, which `t > 0` rejects
+                // as well.
+                let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
+                let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
+                let inv = _mm256_div_ps(one, det);
+                let tt = _mm256_add_ps(
+                    _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
+                    _mm256_mul_ps(w, pz[2]),
+                );
+                let t = _mm256_mul_ps(tt, inv);
+                // sign bit set where the signs agree and 0 < t < best so far (`best_t` starts
+                // at tmax and only decreases; triangles in index order, so ties keep the
+                // lowest index); blends look at the sign bit only
+                let ok = _mm256_andnot_ps(mixed, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
+                let take = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, best_t));
+                best_t = _mm256_blendv_ps(best_t, t, take);
+                // SAFETY: `tri[3]` is an initialised u32, read as the bits of an f32.
+                let i = unsafe { _mm256_broadcast_ss(&*(&tri[3] as *const u32 as *const f32)) };
+                best_i = _mm256_blendv_ps(best_i, i, take);
+            }
         }
         // The barycentrics of each lane's closest triangle: the loop's operations again, on the
         // winner's corners gathered per lane (same bits as if they had been kept in the loop).
@@ -381,6 +390,38 @@ mod tests {
                 .collect();
             check(tris, &rays);
         }
+    }
+
+    #[test]
+    fn meshes_with_shared_corners_over_several_groups_match_brute_force() {
+        // A 10 × 8 grid of quads (160 triangles: three groups), corners shared between up to six
+        // triangles and between groups, heights jittered; rays from above and below, some
+        // through grid corners (exact-zero edge functions).
+        let mut rng = Rng::new(3, 9, 0);
+        let (nx, ny) = (10usize, 8usize);
+        let h: Vec<f32> = (0..(nx + 1) * (ny + 1)).map(|_| rng.next_f32() * 0.3).collect();
+        let p = |i: usize, j: usize| Vec3::new(i as f32 * 0.25, j as f32 * 0.25, h[j * (nx + 1) + i]);
+        let mut tris = Vec::new();
+        for j in 0..ny {
+            for i in 0..nx {
+                tris.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
+                tris.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
+            }
+        }
+        assert_eq!(PacketAccel::new(tris.clone()).groups.len(), 3);
+        let mut rays = Vec::new();
+        for k in 0..6000 {
+            let target = Vec3::new(rng.next_f32() * 2.5, rng.next_f32() * 2.0, 0.15);
+            let target = if k % 5 == 0 { p(k % (nx + 1), (k / 7) % (ny + 1)) } else { target };
+            let up = k % 2 == 0;
+            let o = Vec3::new(
+                rng.next_f32() * 3.0 - 0.25,
+                rng.next_f32() * 2.5 - 0.25,
+                if up { -1.0 } else { 2.0 },
+            );
+            rays.push(Ray::new(o, target - o));
+        }
+        check(tris, &rays);
     }
 
     #[test]
