@@ -11,9 +11,9 @@
 //! 64 triangles (corners compared by their bits; a mesh's corners are shared by about six
 //! triangles, the Cornell box's 32 triangles have 28 distinct corners instead of 96) into a
 //! scratch buffer on the stack, and the triangle loop then reads its three sheared corners from
-//! there — fewer operations, and no per-ray constant left in registers during that loop. After
-//! the loop the barycentrics of each lane's winner are computed once from its gathered corners
-//! (the loop's operations, so the same bits as keeping them per triangle).
+//! there — fewer operations, and no per-ray constant left in registers during that loop. Each
+//! lane keeps its winner's `v`, `w` and `1/det` with the same selects (cheaper than gathering
+//! the winners' corners after the loop), so the barycentrics are the scalar test's bits.
 //!
 //! **Same hits as [`super::TinyAccel`] and [`super::BruteForce`]**: per lane, the axis
 //! permutation and shear of [`super::TriRay`] (the permuted components of a broadcast corner are
@@ -76,7 +76,7 @@ struct Corner([f32; 4]);
 /// buffer on the stack (96 bytes per corner).
 const GROUP: usize = 64;
 
-/// Consecutive triangles `first..first + tris.len()` and their distinct corners.
+/// Consecutive triangles and their distinct corners.
 #[derive(Clone, Debug)]
 struct Group {
     /// The distinct corners (by bit pattern) of the group's triangles.
@@ -89,8 +89,8 @@ struct Group {
 /// Tiny triangle soup for [`RayPacket`] queries (see the module docs).
 #[derive(Clone, Debug)]
 pub struct PacketAccel {
-    /// The corners of each triangle (the winners' barycentrics are computed from them).
-    corners: Vec<[Corner; 3]>,
+    /// Number of triangles.
+    len: usize,
     groups: Vec<Group>,
     /// The scalar test for lanes with a zero edge function and CPUs without AVX2.
     brute: BruteForce,
@@ -100,7 +100,6 @@ impl PacketAccel {
     /// Wraps a triangle soup (the cost per packet is linear in the triangle count: meant for a
     /// few dozen).
     pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
-        let corners = tris.iter().map(|t| t.map(|p| Corner([p.x, p.y, p.z, 0.0]))).collect();
         let mut groups = Vec::new();
         for (g, chunk) in tris.chunks(GROUP).enumerate() {
             let mut verts: Vec<Corner> = Vec::new();
@@ -123,17 +122,17 @@ impl PacketAccel {
                 .collect();
             groups.push(Group { verts, tris });
         }
-        PacketAccel { corners, groups, brute: BruteForce::new(tris) }
+        PacketAccel { len: tris.len(), groups, brute: BruteForce::new(tris) }
     }
 
     /// Number of triangles.
     pub fn len(&self) -> usize {
-        self.corners.len()
+        self.len
     }
 
     /// Whether there are no triangles.
     pub fn is_empty(&self) -> bool {
-        self.corners.is_empty()
+        self.len == 0
     }
 
     /// Closest hit of every lane with `0 < t < tmax` (`None` for misses and inactive lanes).
@@ -164,7 +163,7 @@ impl PacketAccel {
     pub(crate) fn intersect_avx2(&self, rays: &RayPacket) -> PacketHits {
         use std::arch::x86_64::*;
         use std::mem::MaybeUninit;
-        if self.corners.is_empty() {
+        if self.len == 0 {
             return PacketHits::NONE;
         }
         // Per lane, branch-free: the axis choice and shear of `TriRay::new`, except that kx, ky
@@ -205,6 +204,7 @@ impl PacketAccel {
         let one = _mm256_set1_ps(1.0);
         let mut best_t = ldf(&rays.tmax);
         let mut best_i = _mm256_set1_ps(f32::from_bits(u32::MAX)); // -1: no hit
+        let (mut best_v, mut best_w, mut best_inv) = (zero, zero, zero);
         let mut zany = zero;
         // The sheared corners `(px, py, pz)` of a group, per lane, computed once per distinct
         // corner: a corner shared by several triangles gives each of them the same bits.
@@ -260,32 +260,14 @@ impl PacketAccel {
                 // SAFETY: `tri[3]` is an initialised u32, read as the bits of an f32.
                 let i = unsafe { _mm256_broadcast_ss(&*(&tri[3] as *const u32 as *const f32)) };
                 best_i = _mm256_blendv_ps(best_i, i, take);
+                best_v = _mm256_blendv_ps(best_v, v, take);
+                best_w = _mm256_blendv_ps(best_w, w, take);
+                best_inv = _mm256_blendv_ps(best_inv, inv, take);
             }
         }
-        // The barycentrics of each lane's closest triangle: the loop's operations again, on the
-        // winner's corners gathered per lane (same bits as if they had been kept in the loop).
         let best_i = _mm256_castps_si256(best_i);
-        let row = _mm256_mullo_epi32(_mm256_max_epi32(best_i, _mm256_setzero_si256()), _mm256_set1_epi32(12));
-        let base = self.corners.as_ptr().cast::<f32>();
-        let mut px = [zero; 3];
-        let mut py = [zero; 3];
-        for v in 0..3 {
-            let at = |k| _mm256_add_epi32(row, _mm256_add_epi32(_mm256_set1_epi32(4 * v as i32), k));
-            // SAFETY: lanes without a hit read triangle 0 (the loop ran, so there is one); the
-            // others read their winner's corner `v`, axis 0..2: inside `corners`.
-            let g = |k| unsafe { _mm256_i32gather_ps::<4>(base, at(k)) };
-            let az = _mm256_sub_ps(g(ikz), oz);
-            let ax = _mm256_sub_ps(g(ikx), ox);
-            let ay = _mm256_sub_ps(g(iky), oy);
-            px[v] = _mm256_sub_ps(ax, _mm256_mul_ps(sx, az));
-            py[v] = _mm256_sub_ps(ay, _mm256_mul_ps(sy, az));
-        }
-        let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
-        let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
-        let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
-        let inv = _mm256_div_ps(one, _mm256_add_ps(_mm256_add_ps(u, v), w));
-        let best_b1 = _mm256_mul_ps(v, inv);
-        let best_b2 = _mm256_mul_ps(w, inv);
+        let best_b1 = _mm256_mul_ps(best_v, best_inv);
+        let best_b2 = _mm256_mul_ps(best_w, best_inv);
         let mut h = PacketHits::NONE;
         // SAFETY: as above.
         unsafe {
