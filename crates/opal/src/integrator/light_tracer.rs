@@ -793,6 +793,13 @@ struct ScatterOut {
     valid: [u32; W],
 }
 
+/// `[f(0), f(1), f(2)]`. In the SIMD kernels instead of `std::array::from_fn`, whose closure
+/// wrappers the compiler kept out of line, compiled without AVX2 (SSE halves through memory).
+#[inline(always)]
+fn each3<T>(f: impl Fn(usize) -> T) -> [T; 3] {
+    [f(0), f(1), f(2)]
+}
+
 /// `square_to_cosine_hemisphere(u)` on [`W`] lanes (concentric map with
 /// `fastmath::sincos_2pi`, selects for its branches): `[x, y, z]`, the same bits per lane.
 #[inline(always)]
@@ -829,7 +836,7 @@ fn offset_lanes(
     let towards = ((n_off[0] * dir[0] + n_off[1] * dir[1]) + n_off[2] * dir[2])
         .ge(crate::fastmath::wide::F::splat(0.0));
     let mag = towards.select(mag, -mag);
-    std::array::from_fn(|c| p[c] + n_off[c] * mag)
+    each3(|c| p[c] + n_off[c] * mag)
 }
 
 /// The Lambertian scattering of [`trace_path`] on [`W`] lanes: the same operations in the same
@@ -854,7 +861,7 @@ fn scatter_lanes<const NORMALS: bool>(rays: &RayPacket, i: &ScatterIn) -> Scatte
     // (without `NORMALS` no lane has normals: the select below would pick `ng` everywhere)
     let ns = if NORMALS {
         let (n0, n1, n2) = (ld(&i.n[0]), ld(&i.n[1]), ld(&i.n[2]));
-        let ni: V = std::array::from_fn(|c| n0[c] * b0 + n1[c] * b1 + n2[c] * b2);
+        let ni: V = each3(|c| n0[c] * b0 + n1[c] * b1 + n2[c] * b2);
         let len = dot(ni, ni).sqrt();
         let use_ni = M(i.has_n) & len.gt(zero);
         sel(use_ni, [ni[0] / len, ni[1] / len, ni[2] / len], ng)
@@ -875,7 +882,7 @@ fn scatter_lanes<const NORMALS: bool>(rays: &RayPacket, i: &ScatterIn) -> Scatte
     valid = valid & pdf.gt(zero);
     let ratio = z.abs() / pdf;
     // Frame::to_world
-    let dir: V = std::array::from_fn(|c| (fs[c] * dx + ft[c] * dy) + n[c] * z);
+    let dir: V = each3(|c| (fs[c] * dx + ft[c] * dy) + n[c] * z);
     let o = offset_lanes(p, ng_off, dir);
     let mut out = ScatterOut::default();
     for c in 0..3 {
@@ -1539,11 +1546,11 @@ fn start_lanes(i: &StartIn) -> StartOut {
     // p0·(1 − b0 − b1) + p1·b0 + p2·b1
     let w0 = 1.0 - b0 - b1;
     let (p0, p1, p2) = (ld(&i.p[0]), ld(&i.p[1]), ld(&i.p[2]));
-    let o: V = std::array::from_fn(|c| p0[c] * w0 + p1[c] * b0 + p2[c] * b1);
+    let o: V = each3(|c| p0[c] * w0 + p1[c] * b0 + p2[c] * b1);
     let [dx, dy, z] = cosine_hemisphere_lanes(F(i.u_dir[0]), F(i.u_dir[1]));
     // Frame::to_world
     let (fs, ft, fnn) = (ld(&i.s), ld(&i.t), ld(&i.n));
-    let dir: V = std::array::from_fn(|c| (fs[c] * dx + ft[c] * dy) + fnn[c] * z);
+    let dir: V = each3(|c| (fs[c] * dx + ft[c] * dy) + fnn[c] * z);
     let pdf_dir = z / std::f32::consts::PI;
     let (pmf, pdf_pos) = (F(i.pmf), F(i.inv_area));
     let valid = z.gt(zero) & pmf.gt(zero) & pdf_pos.gt(zero) & pdf_dir.gt(zero);
