@@ -76,13 +76,16 @@ struct Corner([f32; 4]);
 /// buffer on the stack (96 bytes per corner).
 const GROUP: usize = 64;
 
+/// Bytes per sheared corner in the scratch buffer (three `__m256`).
+const SHEARED_BYTES: u32 = 96;
+
 /// Consecutive triangles and their distinct corners.
 #[derive(Clone, Debug)]
 struct Group {
     /// The distinct corners (by bit pattern) of the group's triangles.
     verts: Vec<Corner>,
-    /// Per triangle: the indices of its three corners in `verts`, and the triangle's index in
-    /// the soup (its bits).
+    /// Per triangle: the byte offsets of its three sheared corners in the scratch buffer
+    /// (`96 ·` their index in `verts`), and the triangle's index in the soup (its bits).
     tris: Vec<[u32; 4]>,
 }
 
@@ -111,10 +114,11 @@ impl PacketAccel {
                     let mut e = [0u32; 4];
                     for (c, p) in t.iter().enumerate() {
                         let key = [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
-                        e[c] = *index.entry(key).or_insert_with(|| {
+                        let v = *index.entry(key).or_insert_with(|| {
                             verts.push(Corner([p.x, p.y, p.z, 0.0]));
                             verts.len() as u32 - 1
                         });
+                        e[c] = v * SHEARED_BYTES;
                     }
                     e[3] = (g * GROUP + k) as u32;
                     e
@@ -224,10 +228,11 @@ impl PacketAccel {
                 ]);
             }
             for tri in &g.tris {
-                // SAFETY: the group's corner indices are below `verts.len()` ≤ 3·GROUP, and the
-                // loop above wrote those slots.
-                let [a, b, c] =
-                    [0, 1, 2].map(|k| unsafe { sheared.get_unchecked(tri[k] as usize).assume_init() });
+                // SAFETY: the offsets are those of slots below `verts.len()` ≤ 3·GROUP (`new`),
+                // which the loop above wrote.
+                let [a, b, c] = [0, 1, 2].map(|k| unsafe {
+                    sheared.as_ptr().cast::<u8>().add(tri[k] as usize).cast::<[__m256; 3]>().read()
+                });
                 let [px, py, pz] = [0, 1, 2].map(|k| [a[k], b[k], c[k]]);
                 let edge = |i: usize, j: usize| {
                     _mm256_sub_ps(_mm256_mul_ps(px[i], py[j]), _mm256_mul_ps(py[i], px[j]))
