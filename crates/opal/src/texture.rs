@@ -24,6 +24,10 @@ use crate::spectrum::Spectrum;
 #[inline]
 pub fn wrap_index(i: i64, n: usize, mode: WrapMode) -> usize {
     let n = n as i64;
+    if (0..n).contains(&i) {
+        // every mode leaves indices inside the image alone (no integer division)
+        return i as usize;
+    }
     let r = match mode {
         WrapMode::Clamp => i.clamp(0, n - 1),
         WrapMode::Repeat => i.rem_euclid(n),
@@ -33,6 +37,21 @@ pub fn wrap_index(i: i64, n: usize, mode: WrapMode) -> usize {
         }
     };
     r as usize
+}
+
+/// `x.floor()` without a call into libm (x86-64 without SSE4.1 has no rounding instruction):
+/// truncation corrected downwards for negative non-integers; the same value for every finite
+/// `x` (beyond 2²³ every float is an integer; ±0 keep their sign, as `floor`), `floor` itself
+/// for the rest.
+#[inline]
+fn floor(x: f32) -> f32 {
+    if x.abs() < 8_388_608.0 {
+        let t = x as i32 as f32;
+        let t = if t > x { t - 1.0 } else { t };
+        t.copysign(x)
+    } else {
+        x.floor()
+    }
 }
 
 impl TextureDesc {
@@ -69,24 +88,25 @@ impl BitmapDesc {
         if !(uv.x.is_finite() && uv.y.is_finite()) {
             return Spectrum::ZERO;
         }
-        let fetch = |x: i64, y: i64| img.get(wrap_index(x, w, self.wrap), wrap_index(y, h, self.wrap));
+        let (wx, wy) = (|x: i64| wrap_index(x, w, self.wrap), |y: i64| wrap_index(y, h, self.wrap));
         match self.filter {
             FilterType::Nearest => {
-                let x = (uv.x * w as f32).floor() as i64;
-                let y = (uv.y * h as f32).floor() as i64;
-                fetch(x, y)
+                let x = floor(uv.x * w as f32) as i64;
+                let y = floor(uv.y * h as f32) as i64;
+                img.get(wx(x), wy(y))
             }
             FilterType::Bilinear => {
                 let px = uv.x * w as f32 - 0.5;
                 let py = uv.y * h as f32 - 0.5;
-                let (fx, fy) = (px.floor(), py.floor());
+                let (fx, fy) = (floor(px), floor(py));
                 let (wx1, wy1) = (px - fx, py - fy);
                 let (wx0, wy0) = (1.0 - wx1, 1.0 - wy1);
                 let (x0, y0) = (fx as i64, fy as i64);
-                let v00 = fetch(x0, y0);
-                let v10 = fetch(x0 + 1, y0);
-                let v01 = fetch(x0, y0 + 1);
-                let v11 = fetch(x0 + 1, y0 + 1);
+                let (x0, x1, y0, y1) = (wx(x0), wx(x0 + 1), wy(y0), wy(y0 + 1));
+                let v00 = img.get(x0, y0);
+                let v10 = img.get(x1, y0);
+                let v01 = img.get(x0, y1);
+                let v11 = img.get(x1, y1);
                 // Same weights and accumulation order as Dr.Jit's `eval_nonaccel`.
                 v00 * (wx0 * wy0) + v10 * (wx1 * wy0) + v01 * (wx0 * wy1) + v11 * (wx1 * wy1)
             }
@@ -109,6 +129,22 @@ mod tests {
             }
         }
         BitmapDesc { image: Arc::new(img), filter, wrap, path: "mem".into() }
+    }
+
+    #[test]
+    fn floor_without_libm_is_floor() {
+        let mut rng = crate::sampling::Rng::new(5, 0, 0);
+        let mut xs =
+            vec![0.0f32, -0.0, 0.5, -0.5, 1.0, -1.0, 8_388_607.5, -8_388_607.5, 8_388_608.0, 1e30, -1e30];
+        xs.extend([f32::MIN_POSITIVE, -f32::MIN_POSITIVE, 1e-45, -1e-45, f32::INFINITY, f32::NEG_INFINITY]);
+        for _ in 0..100_000 {
+            let e = (rng.next_f32() * 60.0 - 30.0).exp2();
+            xs.push((rng.next_f32() * 2.0 - 1.0) * e);
+        }
+        for x in xs {
+            assert_eq!(floor(x).to_bits(), x.floor().to_bits(), "{x:e}");
+        }
+        assert!(floor(f32::NAN).is_nan());
     }
 
     #[test]
