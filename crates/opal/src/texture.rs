@@ -21,13 +21,19 @@ use crate::scene::desc::{BitmapDesc, FilterType, TextureDesc, WrapMode};
 use crate::spectrum::Spectrum;
 
 /// Wraps an integer texel index into `[0, n)`.
-#[inline]
+#[inline(always)]
 pub fn wrap_index(i: i64, n: usize, mode: WrapMode) -> usize {
-    let n = n as i64;
-    if (0..n).contains(&i) {
+    if (0..n as i64).contains(&i) {
         // every mode leaves indices inside the image alone (no integer division)
         return i as usize;
     }
+    wrap_outside(i, n, mode)
+}
+
+/// [`wrap_index`] of an index outside `[0, n)`.
+#[inline(never)]
+fn wrap_outside(i: i64, n: usize, mode: WrapMode) -> usize {
+    let n = n as i64;
     let r = match mode {
         WrapMode::Clamp => i.clamp(0, n - 1),
         WrapMode::Repeat => i.rem_euclid(n),

@@ -252,6 +252,22 @@ impl Cells {
         }
     }
 
+    /// Adds `v` (`i32` units) to channels `i..i + 3` (as [`Cells::add`]).
+    #[inline(always)]
+    fn add32(&mut self, i: usize, v: [i32; 3]) {
+        let n = self.fine.len();
+        let cell = &mut self.fine[i..i + 3];
+        for c in 0..3 {
+            match cell[c].checked_add(v[c]) {
+                Some(y) => cell[c] = y,
+                None => {
+                    let old = std::mem::replace(&mut cell[c], v[c]);
+                    spill_add(&mut self.spill, n, i + c, old as i64);
+                }
+            }
+        }
+    }
+
     /// The sum of channel `j` (wrapping: exact while no texel's true sum reaches 2⁶³).
     #[inline]
     fn get(&self, j: usize) -> i64 {
@@ -1636,62 +1652,104 @@ const QUEUE: usize = 32;
 /// A worker's accumulator behind a queue of [`QUEUE`] deposits: a deposit's texel is
 /// prefetched when it is pushed and the addition happens when it leaves the queue, about ten
 /// paths later, so the memory latency overlaps the tracing instead of stalling it.
+///
+/// The maps are kept flat by map number `2·shape + direct` (empty where a shape has none) and
+/// a queued deposit is 20 bytes (`i32` units: a deposit beyond `i32`, in practice never, is
+/// added at once), so a deposit costs few instructions besides its cache miss.
 struct Sink {
-    acc: Acc,
-    ring: [Pending; QUEUE],
+    /// Per map `2·shape + direct`.
+    maps: Vec<Cells>,
+    /// Per shape: the map size (`None`: no target) and the exact sum of |units| deposited.
+    shapes: Vec<Option<(usize, usize)>>,
+    totals: Vec<u128>,
+    ring: [Queued; QUEUE],
+    /// Oldest queued deposit, number queued.
     head: usize,
     len: usize,
 }
 
+/// A queued deposit: map number, index of the texel's red channel, units.
+#[derive(Clone, Copy, Default)]
+struct Queued {
+    map: u32,
+    index: u32,
+    value: [i32; 3],
+}
+
 impl Sink {
     fn new(acc: Acc) -> Sink {
-        Sink { acc, ring: [Pending::default(); QUEUE], head: 0, len: 0 }
+        let mut maps = Vec::with_capacity(2 * acc.len());
+        let mut shapes = Vec::with_capacity(acc.len());
+        for m in acc {
+            match m {
+                Some(m) => {
+                    maps.push(m.indirect);
+                    maps.push(m.direct);
+                    shapes.push(Some((m.width, m.height)));
+                }
+                None => {
+                    maps.push(Cells::new(0));
+                    maps.push(Cells::new(0));
+                    shapes.push(None);
+                }
+            }
+        }
+        let totals = vec![0; shapes.len()];
+        Sink { maps, shapes, totals, ring: [Queued::default(); QUEUE], head: 0, len: 0 }
     }
+
     #[inline]
     fn push(&mut self, p: Pending) {
-        if let Some(m) = self.acc[p.shape].as_ref() {
-            prefetch(if p.direct { &m.direct.fine[p.index] } else { &m.indirect.fine[p.index] });
+        let map = 2 * p.shape + p.direct as usize;
+        self.totals[p.shape] += p.value.iter().map(|v| v.unsigned_abs() as u128).sum::<u128>();
+        prefetch(&self.maps[map].fine[p.index]);
+        let value = p.value.map(|v| v as i32);
+        if value.iter().zip(&p.value).any(|(&a, &b)| a as i64 != b) || p.index > u32::MAX as usize {
+            self.maps[map].add(p.index, p.value);
+            return;
         }
+        let q = Queued { map: map as u32, index: p.index as u32, value };
         if self.len == QUEUE {
-            let old = std::mem::replace(&mut self.ring[self.head], p);
+            let old = std::mem::replace(&mut self.ring[self.head], q);
             self.head = (self.head + 1) % QUEUE;
-            old.apply(&mut self.acc);
+            self.apply(old);
         } else {
-            self.ring[(self.head + self.len) % QUEUE] = p;
+            self.ring[(self.head + self.len) % QUEUE] = q;
             self.len += 1;
         }
     }
+
+    #[inline]
+    fn apply(&mut self, q: Queued) {
+        self.maps[q.map as usize].add32(q.index as usize, q.value);
+    }
+
     /// Applies the queued deposits and returns the accumulator.
     fn finish(mut self) -> Acc {
         for k in 0..self.len {
-            let p = self.ring[(self.head + k) % QUEUE];
-            p.apply(&mut self.acc);
+            let q = self.ring[(self.head + k) % QUEUE];
+            self.apply(q);
         }
-        self.acc
+        let mut maps = self.maps.into_iter();
+        self.shapes
+            .iter()
+            .zip(self.totals)
+            .map(|(size, total)| {
+                let (indirect, direct) = (maps.next().expect("two maps"), maps.next().expect("per shape"));
+                size.map(|(width, height)| ShapeAcc { width, height, direct, indirect, total })
+            })
+            .collect()
     }
 }
 
 /// A deposit: texel, map and integer value.
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Copy)]
 struct Pending {
     shape: usize,
     /// Index of the texel's red channel in the flat map.
     index: usize,
     direct: bool,
     value: [i64; 3],
-}
-
-impl Pending {
-    #[inline]
-    fn apply(self, acc: &mut Acc) {
-        if let Some(m) = acc[self.shape].as_mut() {
-            let cells = if self.direct { &mut m.direct } else { &mut m.indirect };
-            cells.add(self.index, self.value);
-            for v in self.value {
-                m.total += v.unsigned_abs() as u128;
-            }
-        }
-    }
 }
 
 /// Hint to bring the cache line of `v` close to the core (no effect on results).
