@@ -1041,14 +1041,16 @@ fn lanes_of(mut m: u32) -> impl Iterator<Item = usize> {
 impl<'a> Lanes<'a> {
     /// Puts a new path into lane `l`.
     #[inline]
-    fn start(&mut self, l: usize, st: PathState<'a>) {
-        self.rays.set(l, &st.ray);
+    fn start(&mut self, l: usize, b: &StartBlock, k: usize) {
         for c in 0..3 {
-            self.beta[c][l] = st.beta[c];
+            self.rays.o[c][l] = b.o[c][k];
+            self.rays.d[c][l] = b.d[c][k];
+            self.beta[c][l] = b.beta[c][k];
         }
-        self.b0[l] = st.b0;
+        self.rays.tmax[l] = f32::INFINITY;
+        self.b0[l] = Spectrum([b.beta[0][k], b.beta[1][k], b.beta[2][k]]).max_component();
         self.depth[l] = 0;
-        self.rng[l] = st.rng;
+        self.rng[l] = b.rng[k].clone();
         self.active |= 1 << l;
         self.pending &= !(1 << l);
         self.bitmap &= !(1 << l);
@@ -1361,7 +1363,7 @@ impl Wavefront {
         };
         let mut next = paths.start;
         // the starts of the next paths, prepared W at a time; `taken` of them handed out
-        let mut block: [Option<PathState<'a>>; W] = std::array::from_fn(|_| None);
+        let mut block = StartBlock::new(stream);
         let mut taken = W;
         // lane `l` takes the next path of the batch that carries something, or turns inactive
         let mut refill = |ln: &mut Lanes<'a>, l: usize| {
@@ -1371,14 +1373,14 @@ impl Wavefront {
                         break;
                     }
                     let end = (next + W as u64).min(paths.end);
-                    block = starts(scene, sampler, &tab.lights, stream, next..end);
+                    starts(scene, sampler, &tab.lights, stream, next..end, &mut block);
                     next = end;
                     taken = 0;
                 }
-                let st = block[taken].take();
+                let k = taken;
                 taken += 1;
-                if let Some(st) = st {
-                    ln.start(l, st);
+                if block.valid & (1 << k) != 0 {
+                    ln.start(l, &block, k);
                     return;
                 }
             }
@@ -1585,26 +1587,57 @@ fn start_lanes(i: &StartIn) -> StartOut {
     out
 }
 
-/// The path starts of the indices `range` (at most [`W`]), in order; `None` where
-/// [`start_path`] gives `None` (same paths, same bits: triangle lights through
+/// Path starts prepared [`W`] at a time (structure of arrays): for the lanes in `valid`, the
+/// emitted ray (offset), its weight β and the path's generator after the start's draws.
+struct StartBlock {
+    o: [[f32; W]; 3],
+    d: [[f32; W]; 3],
+    beta: [[f32; W]; 3],
+    rng: [Rng; W],
+    valid: u32,
+}
+
+impl StartBlock {
+    fn new(stream: &RngStream) -> StartBlock {
+        StartBlock {
+            o: [[0.0; W]; 3],
+            d: [[0.0; W]; 3],
+            beta: [[0.0; W]; 3],
+            rng: std::array::from_fn(|_| stream.rng(0)),
+            valid: 0,
+        }
+    }
+}
+
+/// The path starts of the indices `range` (at most [`W`]), in order, into `out`; lane `l` is
+/// valid where [`start_path`] gives a path (same paths, same bits: triangle lights through
 /// [`start_lanes`], other lights through `start_path` itself).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn starts<'a>(
+fn starts(
     scene: &Scene,
     sampler: &crate::light::LightSampler,
     lights: &[Option<LightRow>],
     stream: &RngStream,
     range: std::ops::Range<u64>,
-) -> [Option<PathState<'a>>; W] {
-    let mut out: [Option<PathState<'a>>; W] = std::array::from_fn(|_| None);
+    out: &mut StartBlock,
+) {
     let mut inp = StartIn::default();
-    let mut rngs: [Option<Rng>; W] = std::array::from_fn(|_| None);
+    let mut simd = 0u32;
+    let mut scalar = 0u32;
     for (l, i) in range.enumerate() {
         let mut rng = stream.rng(i);
         let (li, pmf, _) = sampler.sample(rng.next_f32());
         let Some(row) = &lights[li] else {
-            out[l] = start_path(scene, sampler, stream.rng(i));
+            if let Some(st) = start_path(scene, sampler, stream.rng(i)) {
+                for c in 0..3 {
+                    out.o[c][l] = st.ray.o[c];
+                    out.d[c][l] = st.ray.d[c];
+                    out.beta[c][l] = st.beta[c];
+                }
+                out.rng[l] = st.rng;
+                scalar |= 1 << l;
+            }
             continue;
         };
         let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
@@ -1624,20 +1657,19 @@ fn starts<'a>(
         inp.u_pos[1][l] = u_pos.y;
         inp.u_dir[0][l] = u_dir.x;
         inp.u_dir[1][l] = u_dir.y;
-        rngs[l] = Some(rng);
+        out.rng[l] = rng;
+        simd |= 1 << l;
     }
     let o = avx::start_kernel(&inp);
-    for (l, rng) in rngs.into_iter().enumerate() {
-        let Some(rng) = rng else { continue };
-        if o.valid[l] == 0 {
-            continue;
+    let valid = simd & mask(|l| o.valid[l] != 0);
+    for l in lanes_of(valid) {
+        for c in 0..3 {
+            out.o[c][l] = o.o[c][l];
+            out.d[c][l] = o.d[c][l];
+            out.beta[c][l] = o.beta[c][l];
         }
-        let beta = Spectrum(std::array::from_fn(|c| o.beta[c][l]));
-        let ray =
-            Ray::new(Vec3::new(o.o[0][l], o.o[1][l], o.o[2][l]), Vec3::new(o.d[0][l], o.d[1][l], o.d[2][l]));
-        out[l] = Some(PathState { rng, ray, beta, b0: beta.max_component(), depth: 0, pending: None });
     }
-    out
+    out.valid = valid | scalar;
 }
 
 /// Mask of the lanes where `f(l)` holds.
