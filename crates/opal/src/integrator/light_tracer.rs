@@ -1026,6 +1026,41 @@ struct Lanes<'a> {
     active: u32,
 }
 
+impl Lanes<'_> {
+    /// `vertex`'s pending weights `kd_pi · ratio` (bitmap albedos looked up first) and, from
+    /// `rr_depth` on, the roulette of the lanes in `m`; they are no longer pending. Returns the
+    /// lanes whose path ends.
+    #[inline(always)]
+    fn settle(&mut self, m: u32, rr_depth: i32) -> u32 {
+        for l in lanes_of(m & self.bitmap) {
+            let tex = self.tex[l].expect("bitmap lanes hold their texture");
+            let k = eval_texture(tex, self.uv[l]) * INV_PI;
+            for c in 0..3 {
+                self.kd_pi[c][l] = k[c];
+            }
+        }
+        // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
+        let black = unsafe { avx::pending_weights(&mut self.beta, &self.kd_pi, &self.ratio, m) };
+        let mut dead = m & black;
+        if rr_depth >= 0 {
+            for l in lanes_of(m & !dead & mask(|l| self.depth[l] >= rr_depth)) {
+                let beta = Spectrum([self.beta[0][l], self.beta[1][l], self.beta[2][l]]);
+                let q = survival(beta, self.b0[l]);
+                if self.rng[l].next_f32() >= q {
+                    dead |= 1 << l;
+                } else {
+                    let beta = beta * (1.0 / q);
+                    for c in 0..3 {
+                        self.beta[c][l] = beta[c];
+                    }
+                }
+            }
+        }
+        self.pending &= !m;
+        dead
+    }
+}
+
 /// Indices of the set bits of `m`, lowest first.
 #[inline(always)]
 fn lanes_of(mut m: u32) -> impl Iterator<Item = usize> {
@@ -1405,31 +1440,9 @@ impl Wavefront {
             };
             // A lane whose ray missed ends (its pending weight and roulette change nothing).
             let hit = ln.active & mask(|l| hits.prim[l] >= 0);
-            // `vertex`: the pending weights (bitmap albedos looked up now) and the roulette
-            for l in lanes_of(ln.pending & ln.bitmap & hit) {
-                let tex = ln.tex[l].expect("bitmap lanes hold their texture");
-                let k = eval_texture(tex, ln.uv[l]) * INV_PI;
-                for c in 0..3 {
-                    ln.kd_pi[c][l] = k[c];
-                }
-            }
-            let pend = ln.pending & hit;
-            let black = avx::pending_weights(&mut ln.beta, &ln.kd_pi, &ln.ratio, pend);
-            let mut alive = hit & !(pend & black);
-            if s.rr_depth >= 0 {
-                for l in lanes_of(alive & pend & mask(|l| ln.depth[l] >= s.rr_depth)) {
-                    let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
-                    let q = survival(beta, ln.b0[l]);
-                    if ln.rng[l].next_f32() >= q {
-                        alive &= !(1 << l);
-                    } else {
-                        let beta = beta * (1.0 / q);
-                        for c in 0..3 {
-                            ln.beta[c][l] = beta[c];
-                        }
-                    }
-                }
-            }
+            // `vertex`: the pending weights (bitmap albedos looked up now) of the lanes that hit
+            // (lanes facing the roulette settled theirs before the trace, see below)
+            let mut alive = hit & !ln.settle(ln.pending & hit, s.rr_depth);
             // the new vertices: triangle data, deposits, direction samples, scattering
             if alive != 0 {
                 for l in lanes_of(alive) {
@@ -1478,6 +1491,17 @@ impl Wavefront {
                 }
             }
             ln.pending = alive;
+            if s.rr_depth >= 0 {
+                // Lanes whose next vertex faces the roulette settle their pending weight and
+                // draw the roulette now, before their ray is traced: a path the roulette ends
+                // traces no ray for nothing. Same numbers in the same order as `vertex` (no
+                // draw of the path comes between), same deposits: a lane that would have
+                // missed ends either way.
+                let early = alive & mask(|l| ln.depth[l] >= s.rr_depth);
+                if early != 0 {
+                    alive &= !ln.settle(early, s.rr_depth);
+                }
+            }
             let ended = ln.active & !alive;
             ln.active = alive;
             for l in lanes_of(ended) {
