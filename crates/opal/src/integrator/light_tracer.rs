@@ -946,6 +946,8 @@ const ROW_TWO_SIDED: usize = 25;
 const ROW_BITMAP: usize = 26;
 /// Deposit map width and height (as f32, exact: maps are at most 4096 texels wide).
 const ROW_SIZE: usize = 27;
+/// The shape (bits of an `i32`) of a triangle whose hits deposit (`factor > 0`), else −1.
+const ROW_SHAPE: usize = 29;
 
 /// The wavefront's triangle table: rows, the bitmap of each triangle with a bitmap
 /// reflectance, and whether any triangle has corner normals.
@@ -988,6 +990,7 @@ impl<'a> LambertTable<'a> {
             r[ROW_BITMAP] = flag(p.kd_pi.is_none());
             r[ROW_SIZE] = p.width as f32;
             r[ROW_SIZE + 1] = p.height as f32;
+            r[ROW_SHAPE] = f32::from_bits(if p.factor > 0.0 { p.shape } else { u32::MAX });
             rows.push(Row(r));
             tex.push(p.kd_pi.is_none().then_some(t));
         }
@@ -1092,11 +1095,15 @@ impl<'a> Lanes<'a> {
     }
 }
 
-/// What [`avx::deposit_values`] computes.
+/// What [`avx::deposit_values`] computes: texel index and units of each lane, the lanes whose
+/// units are exact (`exact`) and also below 2³¹ in magnitude (`small`), and the triangle's
+/// shape when its hits deposit (else −1).
 struct DepositLanes {
     index: [i32; W],
     value: [[i64; W]; 3],
     exact: u32,
+    small: u32,
+    shape: [i32; W],
 }
 
 /// What [`avx::vertices`] computes besides the kernel's inputs.
@@ -1116,7 +1123,9 @@ struct VertexLanes {
 #[cfg(target_arch = "x86_64")]
 mod avx {
     use super::{PacketHits, RayPacket, Row, ScatterIn, VertexLanes, W};
-    use super::{ROW_BITMAP, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG, ROW_NG_OFF, ROW_SIZE, ROW_TWO_SIDED, ROW_UV};
+    use super::{
+        ROW_BITMAP, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG, ROW_NG_OFF, ROW_SHAPE, ROW_SIZE, ROW_TWO_SIDED, ROW_UV,
+    };
     use std::arch::x86_64::*;
 
     #[inline(always)]
@@ -1266,7 +1275,16 @@ mod avx {
         let (x, y) = (texel(ld(&uv[0]), w), texel(ld(&uv[1]), h));
         let wi = _mm256_cvttps_epi32(w);
         let index = _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(y, wi), x), _mm256_set1_epi32(3));
-        let mut out = super::DepositLanes { index: [0; W], value: [[0; W]; 3], exact: u32::MAX };
+        let mut out = super::DepositLanes {
+            index: [0; W],
+            value: [[0; W]; 3],
+            exact: u32::MAX,
+            small: u32::MAX,
+            shape: [0; W],
+        };
+        // SAFETY: 8 i32, unaligned store.
+        unsafe { _mm256_storeu_si256(out.shape.as_mut_ptr().cast(), _mm256_castps_si256(field(ROW_SHAPE))) };
+        let limit32 = _mm256_set1_pd(2_147_483_648.0); // 2³¹
         // SAFETY: 8 i32, unaligned store.
         unsafe { _mm256_storeu_si256(out.index.as_mut_ptr().cast(), index) };
         let magic = _mm256_set1_pd(6_755_399_441_055_744.0); // 1.5·2⁵²
@@ -1289,6 +1307,9 @@ mod avx {
                 let fine = _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, r), limit);
                 let coarse = (!_mm256_movemask_pd(fine) & 0xf) as u32;
                 out.exact &= !(coarse << (4 * half_lanes));
+                let fits = _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, r), limit32);
+                let big = (!_mm256_movemask_pd(fits) & 0xf) as u32;
+                out.small &= !(big << (4 * half_lanes));
                 let t = _mm256_round_pd::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(r);
                 let v = _mm256_sub_epi64(
                     _mm256_castpd_si256(_mm256_add_pd(t, magic)),
@@ -1299,6 +1320,7 @@ mod avx {
             }
         }
         out.exact &= (1 << W) - 1;
+        out.small &= out.exact;
         out
     }
 
@@ -1456,9 +1478,19 @@ impl Wavefront {
                     let dv = if tab.vector_deposits {
                         avx::deposit_values(rows, &tab.factor, &prim, &v.uv, &ln.beta)
                     } else {
-                        DepositLanes { index: [0; W], value: [[0; W]; 3], exact: 0 }
+                        DepositLanes { index: [0; W], value: [[0; W]; 3], exact: 0, small: 0, shape: [0; W] }
                     };
-                    for l in lanes_of(front) {
+                    // `deposit` of the lanes whose units fit the queue, straight into the sink
+                    let quick = front & dv.small & mask(|l| dv.shape[l] >= 0);
+                    for l in lanes_of(quick) {
+                        let direct = ln.depth[l] == 1;
+                        if direct && !s.direct {
+                            continue;
+                        }
+                        let value = [0, 1, 2].map(|c| dv.value[c][l] as i32);
+                        ctx.sink.push_small(dv.shape[l] as usize, direct, dv.index[l] as u32, value);
+                    }
+                    for l in lanes_of(front & !quick) {
                         let pr = &ctx.prims[prim[l] as usize];
                         let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
                         let pre = (dv.exact & (1 << l) != 0).then(|| {
@@ -1764,7 +1796,21 @@ impl Sink {
             self.maps[map].add(p.index, p.value);
             return;
         }
-        let q = Queued { map: map as u32, index: p.index as u32, value };
+        self.queue(Queued { map: map as u32, index: p.index as u32, value });
+    }
+
+    /// [`Sink::push`] of a deposit whose units fit in `i32` (channel index `index` of the map
+    /// of `shape`, direct or indirect).
+    #[inline]
+    fn push_small(&mut self, shape: usize, direct: bool, index: u32, value: [i32; 3]) {
+        self.totals[shape] += value.iter().map(|v| v.unsigned_abs() as u64).sum::<u64>() as u128;
+        let map = 2 * shape + direct as usize;
+        prefetch(&self.maps[map].fine[index as usize]);
+        self.queue(Queued { map: map as u32, index, value });
+    }
+
+    #[inline(always)]
+    fn queue(&mut self, q: Queued) {
         if self.len == QUEUE {
             let old = std::mem::replace(&mut self.ring[self.head], q);
             self.head = (self.head + 1) % QUEUE;
