@@ -933,21 +933,24 @@ struct Wavefront;
 struct Row([f32; 32]);
 
 /// Offsets in a [`Row`]: unit geometric normal, its offset copy, corner uvs `(u0, v0, u1, …)`,
-/// `kd_pi` (ρ/π of a constant reflectance, zero for a bitmap), corner normals (9, zero without
-/// normals), and the flags (bits of a `u32`: all set = true) "has normals", "two-sided",
-/// "bitmap reflectance".
+/// `kd_pi` (ρ/π of a constant reflectance, zero for a bitmap) and the flags (bits of a `u32`:
+/// [`FLAG_TWO_SIDED`], [`FLAG_BITMAP`]) fill the first 16 floats, which [`avx::vertices`] reads
+/// with two 8×8 transposes; then corner normals (9, zero without normals) and "has normals"
+/// (all bits set = true).
 const ROW_NG: usize = 0;
 const ROW_NG_OFF: usize = 3;
 const ROW_UV: usize = 6;
 const ROW_KD: usize = 12;
-const ROW_N: usize = 15;
-const ROW_HAS_N: usize = 24;
-const ROW_TWO_SIDED: usize = 25;
-const ROW_BITMAP: usize = 26;
+const ROW_FLAGS: usize = 15;
+const ROW_N: usize = 16;
+const ROW_HAS_N: usize = 25;
 /// Deposit map width and height (as f32, exact: maps are at most 4096 texels wide).
-const ROW_SIZE: usize = 27;
+const ROW_SIZE: usize = 26;
 /// The shape (bits of an `i32`) of a triangle whose hits deposit (`factor > 0`), else −1.
-const ROW_SHAPE: usize = 29;
+const ROW_SHAPE: usize = 28;
+/// Bits of [`ROW_FLAGS`]: two-sided material, bitmap reflectance.
+const FLAG_TWO_SIDED: u32 = 1;
+const FLAG_BITMAP: u32 = 2;
 
 /// The wavefront's triangle table: rows, the bitmap of each triangle with a bitmap
 /// reflectance, and whether any triangle has corner normals.
@@ -986,8 +989,9 @@ impl<'a> LambertTable<'a> {
                 r[ROW_UV + 2 * k + 1] = p.uv[k].y;
             }
             r[ROW_HAS_N] = flag(p.normals.is_some());
-            r[ROW_TWO_SIDED] = flag(two_sided);
-            r[ROW_BITMAP] = flag(p.kd_pi.is_none());
+            let flags =
+                if two_sided { FLAG_TWO_SIDED } else { 0 } | if p.kd_pi.is_none() { FLAG_BITMAP } else { 0 };
+            r[ROW_FLAGS] = f32::from_bits(flags);
             r[ROW_SIZE] = p.width as f32;
             r[ROW_SIZE + 1] = p.height as f32;
             r[ROW_SHAPE] = f32::from_bits(if p.factor > 0.0 { p.shape } else { u32::MAX });
@@ -1122,10 +1126,11 @@ struct VertexLanes {
 /// the scalar code they mirror (named on each function), hence the same bits.
 #[cfg(target_arch = "x86_64")]
 mod avx {
-    use super::{PacketHits, RayPacket, Row, ScatterIn, VertexLanes, W};
     use super::{
-        ROW_BITMAP, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG, ROW_NG_OFF, ROW_SHAPE, ROW_SIZE, ROW_TWO_SIDED, ROW_UV,
+        FLAG_BITMAP, FLAG_TWO_SIDED, ROW_FLAGS, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG, ROW_NG_OFF, ROW_SHAPE,
+        ROW_SIZE, ROW_UV,
     };
+    use super::{PacketHits, RayPacket, Row, ScatterIn, VertexLanes, W};
     use std::arch::x86_64::*;
 
     #[inline(always)]
@@ -1154,6 +1159,30 @@ mod avx {
     #[inline]
     fn bits(m: __m256) -> u32 {
         _mm256_movemask_ps(m) as u32
+    }
+
+    /// The 8×8 transpose: `out[k][l] = rows[l][k]`.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn transpose8(r: [__m256; 8]) -> [__m256; 8] {
+        let lo = |a, b| _mm256_unpacklo_ps(a, b);
+        let hi = |a, b| _mm256_unpackhi_ps(a, b);
+        let (t0, t1, t2, t3) = (lo(r[0], r[1]), hi(r[0], r[1]), lo(r[2], r[3]), hi(r[2], r[3]));
+        let (t4, t5, t6, t7) = (lo(r[4], r[5]), hi(r[4], r[5]), lo(r[6], r[7]), hi(r[6], r[7]));
+        let (s0, s1) = (_mm256_shuffle_ps::<0x44>(t0, t2), _mm256_shuffle_ps::<0xEE>(t0, t2));
+        let (s2, s3) = (_mm256_shuffle_ps::<0x44>(t1, t3), _mm256_shuffle_ps::<0xEE>(t1, t3));
+        let (s4, s5) = (_mm256_shuffle_ps::<0x44>(t4, t6), _mm256_shuffle_ps::<0xEE>(t4, t6));
+        let (s6, s7) = (_mm256_shuffle_ps::<0x44>(t5, t7), _mm256_shuffle_ps::<0xEE>(t5, t7));
+        [
+            _mm256_permute2f128_ps::<0x20>(s0, s4),
+            _mm256_permute2f128_ps::<0x20>(s1, s5),
+            _mm256_permute2f128_ps::<0x20>(s2, s6),
+            _mm256_permute2f128_ps::<0x20>(s3, s7),
+            _mm256_permute2f128_ps::<0x31>(s0, s4),
+            _mm256_permute2f128_ps::<0x31>(s1, s5),
+            _mm256_permute2f128_ps::<0x31>(s2, s6),
+            _mm256_permute2f128_ps::<0x31>(s3, s7),
+        ]
     }
 
     /// `vertex`'s pending weights `w = kd_pi · ratio` (`Spectrum * f32`) of the lanes in `pend`:
@@ -1199,7 +1228,19 @@ mod avx {
         let base = rows.as_ptr().cast::<f32>();
         // SAFETY: every lane's row index is < rows.len() (asserted above) and k < 32, so
         // each gathered float lies inside `rows`.
-        let field = |k: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(k), idx) };
+        let gather = |k: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(k), idx) };
+        // The first 16 floats of the eight rows, transposed: `head[k]` = field k per lane.
+        let head: [__m256; 16] = {
+            // SAFETY: every row index is < rows.len() (asserted above); a row holds 32 floats.
+            let half = |h: usize| -> [__m256; 8] {
+                std::array::from_fn(|l| unsafe {
+                    _mm256_loadu_ps(rows[prim[l] as usize].0.as_ptr().add(8 * h))
+                })
+            };
+            let (a, b) = (transpose8(half(0)), transpose8(half(1)));
+            std::array::from_fn(|k| if k < 8 { a[k] } else { b[k - 8] })
+        };
+        let field = |k: usize| head[k];
         let ng = [field(ROW_NG), field(ROW_NG + 1), field(ROW_NG + 2)];
         let (b1, b2) = (ld(&hits.b1), ld(&hits.b2));
         let b0 = _mm256_sub_ps(_mm256_sub_ps(_mm256_set1_ps(1.0), b1), b2);
@@ -1222,17 +1263,22 @@ mod avx {
         if any_normals {
             for k in 0..3 {
                 for c in 0..3 {
-                    st(&mut inp.n[k][c], field(ROW_N + 3 * k + c));
+                    st(&mut inp.n[k][c], gather(ROW_N + 3 * k + c));
                 }
             }
-            st_mask(&mut inp.has_n, field(ROW_HAS_N));
+            st_mask(&mut inp.has_n, gather(ROW_HAS_N));
         }
-        st_mask(&mut inp.two_sided, field(ROW_TWO_SIDED));
+        let flags = _mm256_castps_si256(field(ROW_FLAGS));
+        let flag = |f: u32| {
+            let f = _mm256_set1_epi32(f as i32);
+            _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(flags, f), f))
+        };
+        st_mask(&mut inp.two_sided, flag(FLAG_TWO_SIDED));
         st(&mut inp.b[0], b0);
         st(&mut inp.b[1], b1);
         st(&mut inp.b[2], b2);
         let mut out =
-            VertexLanes { uv: [[0.0; W]; 2], kd_pi: [[0.0; W]; 3], front, bitmap: bits(field(ROW_BITMAP)) };
+            VertexLanes { uv: [[0.0; W]; 2], kd_pi: [[0.0; W]; 3], front, bitmap: bits(flag(FLAG_BITMAP)) };
         st(&mut out.uv[0], u);
         st(&mut out.uv[1], v);
         for c in 0..3 {
