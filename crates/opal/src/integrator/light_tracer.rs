@@ -1302,13 +1302,14 @@ mod avx {
         uv: &[[f32; W]; 2],
         beta: &[[f32; W]; 3],
     ) -> super::DepositLanes {
-        assert!(prim.iter().all(|&p| (p as usize) < rows.len() && (p as usize) < factor.len()));
-        // SAFETY: 8 u32, unaligned load.
-        let idx = unsafe { _mm256_loadu_si256(prim.as_ptr().cast()) };
-        let base = rows.as_ptr().cast::<f32>();
-        let row = _mm256_slli_epi32::<5>(idx);
-        // SAFETY: row indices < rows.len() (asserted), offsets < 32: inside `rows`.
-        let field = |k: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(k), row) };
+        // the last 8 floats of the eight rows, transposed (loads and shuffles: cheaper than
+        // gathers, see `vertices`)
+        let tail = transpose8(std::array::from_fn(|l| {
+            let r = &rows[prim[l] as usize].0;
+            // SAFETY: 8 floats of a 32-float row, unaligned load.
+            unsafe { _mm256_loadu_ps(r.as_ptr().add(24)) }
+        }));
+        let field = |k: usize| tail[k - 24];
         let (w, h) = (field(ROW_SIZE), field(ROW_SIZE + 1));
         let zero = _mm256_setzero_ps();
         let one = _mm256_set1_ps(1.0);
@@ -1338,13 +1339,8 @@ mod avx {
         let sign = _mm256_set1_pd(-0.0);
         let half = _mm256_set1_pd(0.5);
         for half_lanes in 0..2 {
-            let i4 = if half_lanes == 0 {
-                _mm256_castsi256_si128(idx)
-            } else {
-                _mm256_extracti128_si256::<1>(idx)
-            };
-            // SAFETY: indices < factor.len() (asserted).
-            let f = unsafe { _mm256_i32gather_pd::<8>(factor.as_ptr(), i4) };
+            let f = |l: usize| factor[prim[4 * half_lanes + l] as usize];
+            let f = _mm256_setr_pd(f(0), f(1), f(2), f(3));
             for (c, beta_c) in beta.iter().enumerate() {
                 // SAFETY: 4 floats of an 8-float array.
                 let b = unsafe { _mm_loadu_ps(beta_c.as_ptr().add(4 * half_lanes)) };
