@@ -49,8 +49,14 @@ impl Distribution1D {
     /// Sample an item with `u ∈ [0,1)`; returns (index, pmf, u re-scaled to [0,1) within the item).
     pub fn sample(&self, u: f32) -> (usize, f64, f32) {
         let u = u as f64;
-        // first index with cdf[i+1] > u
-        let mut i = self.cdf.partition_point(|&c| c <= u).saturating_sub(1);
+        // first index with cdf[i+1] > u; a few items (lights) are counted without branches (the
+        // same count as the binary search's: the cdf is non-decreasing)
+        let below = if self.cdf.len() <= 17 {
+            self.cdf.iter().map(|&c| (c <= u) as usize).sum()
+        } else {
+            self.cdf.partition_point(|&c| c <= u)
+        };
+        let mut i = below.saturating_sub(1);
         i = i.min(self.len() - 1);
         // skip zero-probability items that the search may land on at their boundary
         while self.pmf(i) == 0.0 && i + 1 < self.len() {
@@ -66,6 +72,28 @@ impl Distribution1D {
 mod tests {
     use super::*;
     use crate::sampling::Rng;
+
+    #[test]
+    fn short_and_long_searches_pick_the_same_items() {
+        // the branch-free count for up to 16 items and the binary search beyond: both give the
+        // first item whose cdf exceeds u, boundaries and zero weights included
+        let mut rng = Rng::new(2, 0, 0);
+        for n in [1usize, 2, 3, 7, 16, 17, 40] {
+            let w: Vec<f64> = (0..n).map(|k| if k % 5 == 2 { 0.0 } else { 1.0 + (k % 3) as f64 }).collect();
+            let Some(d) = Distribution1D::new(&w) else { continue };
+            let mut us: Vec<f32> = d.cdf.iter().map(|&c| c as f32).collect();
+            us.extend((0..2000).map(|_| rng.next_f32()));
+            for u in us.into_iter().filter(|u| *u < 1.0) {
+                let (i, _, _) = d.sample(u);
+                let j = d.cdf.partition_point(|&c| c <= u as f64).saturating_sub(1).min(d.len() - 1);
+                let mut j = j;
+                while d.pmf(j) == 0.0 && j + 1 < d.len() {
+                    j += 1;
+                }
+                assert_eq!(i, j, "n {n}, u {u}");
+            }
+        }
+    }
 
     #[test]
     fn chi2_proportional_to_weights() {
