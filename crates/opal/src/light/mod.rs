@@ -234,6 +234,7 @@ impl LightSampler {
         Distribution1D::new(&w).map(|dist| LightSampler { dist })
     }
     /// Picks a light: (index, probability, re-used uniform).
+    #[inline]
     pub fn sample(&self, u: f32) -> (usize, f32, f32) {
         let (i, p, du) = self.dist.sample(u);
         (i, p as f32, du)

@@ -43,10 +43,12 @@ impl Distribution1D {
         self.total
     }
     /// Probability of item `i`.
+    #[inline]
     pub fn pmf(&self, i: usize) -> f64 {
         self.cdf[i + 1] - self.cdf[i]
     }
     /// Sample an item with `u ∈ [0,1)`; returns (index, pmf, u re-scaled to [0,1) within the item).
+    #[inline]
     pub fn sample(&self, u: f32) -> (usize, f64, f32) {
         let u = u as f64;
         // first index with cdf[i+1] > u; a few items (lights) are counted without branches (the
