@@ -43,10 +43,13 @@
 //! after the next ray is traced so its cache miss overlaps the traversal; deposits go through a
 //! short per-worker queue that prefetches their texel. When every material is Lambertian and
 //! the CPU has AVX2, eight paths advance together (`Wavefront`, state as structure of arrays):
-//! one step traces the eight rays, applies the pending weights, gathers the hit triangles'
-//! data, computes the deposits' texels and integer units and scatters the eight vertices in
-//! SIMD (the roulette, the random numbers and the queue pushes stay per lane), then refills
-//! finished lanes from path starts prepared eight at a time (triangle lights in SIMD) — each
+//! one step traces the eight rays, applies the pending weights, loads the hit triangles' data
+//! (eight rows transposed), computes the deposits' texels and integer units and scatters the
+//! eight vertices in SIMD (the roulette, the random numbers and the queue pushes stay per
+//! lane); lanes whose next vertex faces the roulette settle their weight and draw it before
+//! their ray is traced (a path the roulette ends traces no ray for nothing; same draws in the
+//! same order); finished lanes are refilled from path starts prepared eight at a time
+//! (triangle lights in SIMD) — each
 //! path is bit for bit the one `trace_path` traces alone (its own generator, same operations),
 //! so only the order of the integer deposits changes. In scenes of up to `TINY_MAX` triangles
 //! the eight rays are traced together, one per SIMD lane
@@ -913,11 +916,12 @@ fn scatter_lanes<const NORMALS: bool>(rays: &RayPacket, i: &ScatterIn) -> Scatte
 /// [`W`] light paths advanced together (scenes whose materials are all Lambertian).
 ///
 /// Each lane holds one path; the whole state is kept as a structure of arrays ([`Lanes`]). A
-/// step traces every lane's ray, applies the pending albedo weights and the roulette, gathers
-/// the hit triangles' data, deposits, draws the direction samples, scatters all lanes at once
-/// with [`scatter_lanes`] (which writes the next rays in place), and refills the lanes whose path
-/// ended with the next path of the batch. The per-lane arithmetic is written as loops over the
-/// lanes with selects instead of branches, so the compiler vectorises it and no unpredictable
+/// step traces every lane's ray, applies the pending albedo weights, loads the hit triangles'
+/// data, deposits, draws the direction samples, scatters all lanes at once with
+/// [`scatter_lanes`] (which writes the next rays in place), settles the weight and draws the
+/// roulette of the lanes whose next vertex faces it ([`Lanes::settle`], before their ray is
+/// traced), and refills the lanes whose path ended with the next path of the batch. The
+/// per-lane arithmetic is in AVX2 functions (`avx`) with selects instead of branches, so no unpredictable
 /// branch (alive or dead, bitmap or constant albedo, roulette) is taken per lane; the parts that
 /// only some lanes need (bitmap lookups, roulette numbers, deposits, new paths) loop over the
 /// set bits of a lane mask. A path draws its numbers from its own generator in the same order
