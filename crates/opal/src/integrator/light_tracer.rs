@@ -1018,7 +1018,10 @@ impl<'a> LambertTable<'a> {
 struct Lanes<'a> {
     /// The rays to trace next (inactive lanes: `tmax = 0`, never hit).
     rays: RayPacket,
-    rng: [Rng; W],
+    /// Each lane's generator, as structure of arrays (state, increment: see [`Rng`]), so the
+    /// direction samples are drawn for all lanes at once ([`avx::next_f32_lanes`]).
+    rng_state: [u64; W],
+    rng_inc: [u64; W],
     /// Path weights β.
     beta: [[f32; W]; 3],
     /// `max_c β_c` at the light (the roulette's reference, see [`survival`]).
@@ -1057,7 +1060,10 @@ impl Lanes<'_> {
             for l in lanes_of(m & !dead & mask(|l| self.depth[l] >= rr_depth)) {
                 let beta = Spectrum([self.beta[0][l], self.beta[1][l], self.beta[2][l]]);
                 let q = survival(beta, self.b0[l]);
-                if self.rng[l].next_f32() >= q {
+                let mut rng = Rng { state: self.rng_state[l], inc: self.rng_inc[l] };
+                let u = rng.next_f32();
+                self.rng_state[l] = rng.state;
+                if u >= q {
                     dead |= 1 << l;
                 } else {
                     let beta = beta * (1.0 / q);
@@ -1096,7 +1102,8 @@ impl<'a> Lanes<'a> {
         self.rays.tmax[l] = f32::INFINITY;
         self.b0[l] = Spectrum([b.beta[0][k], b.beta[1][k], b.beta[2][k]]).max_component();
         self.depth[l] = 0;
-        self.rng[l] = b.rng[k].clone();
+        self.rng_state[l] = b.rng[k].state;
+        self.rng_inc[l] = b.rng[k].inc;
         self.active |= 1 << l;
         self.pending &= !(1 << l);
         self.bitmap &= !(1 << l);
@@ -1163,6 +1170,53 @@ mod avx {
     #[inline]
     fn bits(m: __m256) -> u32 {
         _mm256_movemask_ps(m) as u32
+    }
+
+    /// [`crate::sampling::Rng::next_f32`] of the eight generators `(state, inc)` whose lane is in
+    /// `m` (the others keep their state; their numbers are meaningless): the same 64-bit
+    /// arithmetic (the product modulo 2⁶⁴ from three 32×32-bit products), output permutation
+    /// and conversion, hence the same numbers.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(super) fn next_f32_lanes(state: &mut [u64; W], inc: &[u64; W], m: u32) -> [f32; W] {
+        let mult = crate::sampling::Rng::MULT;
+        let (m_lo, m_hi) = (_mm256_set1_epi64x(mult as i64), _mm256_set1_epi64x((mult >> 32) as i64));
+        let low32 = _mm256_set1_epi64x(0xffff_ffff);
+        let mut out = [_mm256_setzero_si256(); 2];
+        for (h, o) in out.iter_mut().enumerate() {
+            // SAFETY: 4 u64 of an 8-u64 array, unaligned loads and store.
+            let old = unsafe { _mm256_loadu_si256(state.as_ptr().add(4 * h).cast()) };
+            let inc = unsafe { _mm256_loadu_si256(inc.as_ptr().add(4 * h).cast()) };
+            let lo_lo = _mm256_mul_epu32(old, m_lo);
+            let cross = _mm256_add_epi64(
+                _mm256_mul_epu32(_mm256_srli_epi64::<32>(old), m_lo),
+                _mm256_mul_epu32(old, m_hi),
+            );
+            let new = _mm256_add_epi64(_mm256_add_epi64(lo_lo, _mm256_slli_epi64::<32>(cross)), inc);
+            let bits = _mm256_set1_epi64x(((m >> (4 * h)) & 0xf) as i64);
+            let one = _mm256_setr_epi64x(1, 2, 4, 8);
+            let take = _mm256_cmpeq_epi64(_mm256_and_si256(bits, one), one);
+            let next = _mm256_blendv_epi8(old, new, take);
+            // SAFETY: as above.
+            unsafe { _mm256_storeu_si256(state.as_mut_ptr().add(4 * h).cast(), next) };
+            // ((old >> 18) ^ old) >> 27, low 32 bits, rotated right by old >> 59
+            let x = _mm256_and_si256(
+                _mm256_srli_epi64::<27>(_mm256_xor_si256(_mm256_srli_epi64::<18>(old), old)),
+                low32,
+            );
+            let rot = _mm256_srli_epi64::<59>(old);
+            let left = _mm256_sllv_epi64(x, _mm256_sub_epi64(_mm256_set1_epi64x(32), rot));
+            *o = _mm256_or_si256(_mm256_srlv_epi64(x, rot), _mm256_and_si256(left, low32));
+        }
+        // the low 32 bits of the eight 64-bit results, in lane order
+        let pick = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+        let (a, b) = (_mm256_permutevar8x32_epi32(out[0], pick), _mm256_permutevar8x32_epi32(out[1], pick));
+        let u = _mm256_blend_epi32::<0xf0>(a, b);
+        let f =
+            _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(u)), _mm256_set1_ps(1.0 / 16_777_216.0));
+        let mut r = [0.0; W];
+        st(&mut r, f);
+        r
     }
 
     /// The 8×8 transpose: `out[k][l] = rows[l][k]`.
@@ -1452,7 +1506,8 @@ impl Wavefront {
         let (scene, sampler, s) = (ctx.scene, ctx.sampler, ctx.s);
         let mut ln = Lanes {
             rays: RayPacket::default(),
-            rng: std::array::from_fn(|_| stream.rng(0)),
+            rng_state: [0; W],
+            rng_inc: [0; W],
             beta: [[0.0; W]; 3],
             b0: [0.0; W],
             depth: [0; W],
@@ -1549,14 +1604,11 @@ impl Wavefront {
                 if s.max_depth >= 0 {
                     alive &= !mask(|l| ln.depth[l] >= s.max_depth);
                 }
-                for l in lanes_of(alive) {
-                    // `Lambert::sample`: drawn for the generic sampler, then the direction sample
-                    let rng = &mut ln.rng[l];
-                    let _uc = rng.next_f32();
-                    let u = rng.next_2d();
-                    inp.u[0][l] = u.x;
-                    inp.u[1][l] = u.y;
-                }
+                // `Lambert::sample`: a number drawn for the generic sampler, then the direction sample
+                // (the same draws per lane as `Rng::next_f32`, eight lanes at a time)
+                avx::next_f32_lanes(&mut ln.rng_state, &ln.rng_inc, alive);
+                inp.u[0] = avx::next_f32_lanes(&mut ln.rng_state, &ln.rng_inc, alive);
+                inp.u[1] = avx::next_f32_lanes(&mut ln.rng_state, &ln.rng_inc, alive);
                 alive = avx::scatter(&mut ln.rays, &inp, alive, &mut ln.ratio, tab.any_normals);
                 ln.kd_pi = v.kd_pi;
                 ln.bitmap = alive & v.bitmap;
@@ -2335,6 +2387,29 @@ mod tests {
         let (a, b) =
             (&out.maps[0].as_ref().unwrap().indirect[0][0], &want.maps[0].as_ref().unwrap().indirect[0][0]);
         assert!(*b > 0.0 && (a / b - 1.0).abs() < 1e-6, "{a} vs {b}");
+    }
+
+    #[test]
+    fn simd_generators_draw_the_scalar_numbers() {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            let stream = RngStream::new(9, RNG_STREAM);
+            let mut scalar: Vec<Rng> = (0..W as u64).map(|i| stream.rng(i * 977)).collect();
+            let mut state: [u64; W] = std::array::from_fn(|l| scalar[l].state);
+            let inc: [u64; W] = std::array::from_fn(|l| scalar[l].inc);
+            let mut mrng = Rng::new(4, 4, 4);
+            for _ in 0..10_000 {
+                let m = mrng.next_u32() & 0xff;
+                // SAFETY: the CPU supports AVX2 (checked above).
+                let got = unsafe { avx::next_f32_lanes(&mut state, &inc, m) };
+                for (l, r) in scalar.iter_mut().enumerate() {
+                    if m & (1 << l) != 0 {
+                        assert_eq!(got[l].to_bits(), r.next_f32().to_bits(), "lane {l}");
+                    }
+                    assert_eq!(state[l], r.state, "lane {l}: state");
+                }
+            }
+        }
     }
 
     #[test]

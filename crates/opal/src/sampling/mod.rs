@@ -54,12 +54,13 @@ impl RngStream {
 /// PCG32 (O'Neill 2014, XSH-RR) seeded from a hash of (seed, stream, index).
 #[derive(Clone, Debug)]
 pub struct Rng {
-    state: u64,
-    inc: u64,
+    pub(crate) state: u64,
+    pub(crate) inc: u64,
 }
 
 impl Rng {
-    const MULT: u64 = 6_364_136_223_846_793_005;
+    /// The PCG multiplier (also used by SIMD copies of the generator).
+    pub(crate) const MULT: u64 = 6_364_136_223_846_793_005;
 
     /// Generator for work item `index` of stream `stream` under `seed`.
     pub fn new(seed: u64, stream: u64, index: u64) -> Self {
