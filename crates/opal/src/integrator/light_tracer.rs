@@ -243,13 +243,7 @@ impl Cells {
         let cell = &mut self.fine[i..i + 3];
         for c in 0..3 {
             match i32::try_from(v[c]) {
-                Ok(x) => match cell[c].checked_add(x) {
-                    Some(y) => cell[c] = y,
-                    None => {
-                        let old = std::mem::replace(&mut cell[c], x);
-                        spill_add(&mut self.spill, n, i + c, old as i64);
-                    }
-                },
+                Ok(x) => add_cell(&mut cell[c], x, &mut self.spill, n, i + c),
                 Err(_) => spill_add(&mut self.spill, n, i + c, v[c]),
             }
         }
@@ -261,13 +255,7 @@ impl Cells {
         let n = self.fine.len();
         let cell = &mut self.fine[i..i + 3];
         for c in 0..3 {
-            match cell[c].checked_add(v[c]) {
-                Some(y) => cell[c] = y,
-                None => {
-                    let old = std::mem::replace(&mut cell[c], v[c]);
-                    spill_add(&mut self.spill, n, i + c, old as i64);
-                }
-            }
+            add_cell(&mut cell[c], v[c], &mut self.spill, n, i + c);
         }
     }
 
@@ -275,6 +263,19 @@ impl Cells {
     #[inline]
     fn get(&self, j: usize) -> i64 {
         (self.fine[j] as i64).wrapping_add(self.spill.get(j).copied().unwrap_or(0))
+    }
+}
+
+/// Adds `x` to `cell`, channel `j` of a map of `n` channels: a cell that would overflow moves
+/// its content to the spill map first.
+#[inline(always)]
+fn add_cell(cell: &mut i32, x: i32, spill: &mut Vec<i64>, n: usize, j: usize) {
+    match cell.checked_add(x) {
+        Some(y) => *cell = y,
+        None => {
+            let old = std::mem::replace(cell, x);
+            spill_add(spill, n, j, old as i64);
+        }
     }
 }
 
@@ -676,7 +677,7 @@ fn vertex<'p, 'a>(
     let b0 = 1.0 - h.b1 - h.b2;
     let uv = pr.uv[0] * b0 + pr.uv[1] * h.b1 + pr.uv[2] * h.b2;
     if (-st.ray.d).dot(pr.ng) > 0.0 {
-        deposit(ctx.sink, ctx.bad, s, pr, uv, st.beta, st.depth, None);
+        deposit(ctx.sink, ctx.bad, s, pr, uv, st.beta, st.depth);
     }
     if s.max_depth >= 0 && st.depth >= s.max_depth {
         return None;
@@ -686,9 +687,7 @@ fn vertex<'p, 'a>(
 
 /// The deposit of a path of weight `beta` reaching the front side of triangle `pr` at `uv` as
 /// its vertex number `depth` (none for triangles without a map and, unless `s.direct`, for
-/// first hits); a non-finite weight is counted in `bad` instead. `pre` = the texel index and
-/// integer units already computed (by [`avx::deposit_values`]), else they are computed here.
-#[allow(clippy::too_many_arguments)]
+/// first hits); a non-finite weight is counted in `bad` instead.
 #[inline(always)]
 fn deposit(
     sink: &mut Sink,
@@ -698,13 +697,8 @@ fn deposit(
     uv: Vec2,
     beta: Spectrum,
     depth: i32,
-    pre: Option<(usize, [i64; 3])>,
 ) {
     if !(pr.factor > 0.0 && (depth > 1 || s.direct)) {
-        return;
-    }
-    if let Some((index, value)) = pre {
-        sink.push(Pending { shape: pr.shape as usize, index, direct: depth == 1, value });
         return;
     }
     let (w, hgt) = (pr.width as usize, pr.height as usize);
@@ -1111,12 +1105,11 @@ impl<'a> Lanes<'a> {
 }
 
 /// What [`avx::deposit_values`] computes: texel index and units of each lane, the lanes whose
-/// units are exact (`exact`) and also below 2³¹ in magnitude (`small`), and the triangle's
-/// shape when its hits deposit (else −1).
+/// units are below 2³¹ in magnitude (`small`: the others are left to [`deposit`]), and the
+/// triangle's shape when its hits deposit (else −1).
 struct DepositLanes {
     index: [i32; W],
     value: [[i64; W]; 3],
-    exact: u32,
     small: u32,
     shape: [i32; W],
 }
@@ -1280,20 +1273,12 @@ mod avx {
         inp: &mut ScatterIn,
     ) -> VertexLanes {
         assert!(prim.iter().all(|&p| (p as usize) < rows.len()), "triangle index out of range");
-        // SAFETY: 8 u32, unaligned load.
-        let idx = unsafe { _mm256_loadu_si256(prim.as_ptr().cast()) };
-        let idx = _mm256_slli_epi32::<5>(idx); // 32 floats per row
         let base = rows.as_ptr().cast::<f32>();
-        // SAFETY: every lane's row index is < rows.len() (asserted above) and k < 32, so
-        // each gathered float lies inside `rows`.
-        let gather = |k: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(k), idx) };
         // The first 16 floats of the eight rows, transposed: `head[k]` = field k per lane.
         let head: [__m256; 16] = {
             // SAFETY: every row index is < rows.len() (asserted above); a row holds 32 floats.
             let half = |h: usize| -> [__m256; 8] {
-                std::array::from_fn(|l| unsafe {
-                    _mm256_loadu_ps(rows[prim[l] as usize].0.as_ptr().add(8 * h))
-                })
+                std::array::from_fn(|l| unsafe { _mm256_loadu_ps(base.add(32 * prim[l] as usize + 8 * h)) })
             };
             let (a, b) = (transpose8(half(0)), transpose8(half(1)));
             std::array::from_fn(|k| if k < 8 { a[k] } else { b[k - 8] })
@@ -1319,6 +1304,11 @@ mod avx {
             st(&mut inp.ng_off[c], field(ROW_NG_OFF + c));
         }
         if any_normals {
+            // SAFETY: 8 u32, unaligned load.
+            let idx = _mm256_slli_epi32::<5>(unsafe { _mm256_loadu_si256(prim.as_ptr().cast()) });
+            // SAFETY: every lane's row index is < rows.len() (asserted above) and k < 32, so
+            // each gathered float lies inside `rows`.
+            let gather = |k: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(k), idx) };
             for k in 0..3 {
                 for c in 0..3 {
                     st(&mut inp.n[k][c], gather(ROW_N + 3 * k + c));
@@ -1348,9 +1338,9 @@ mod avx {
     /// The texel index `3·(y·w + x)` and the rounded units `round(β_c · factor)` of the
     /// deposits of [`W`] vertices of triangles `prim` at `uv` (as [`super::deposit`]: the f32
     /// products `u·w`, the truncation clamped to the map, the f64 products, ties away from
-    /// zero, truncation). `exact` = the lanes whose three unrounded values are below 2⁵¹ in
-    /// magnitude (so finite), for which the conversion to integers here is exact; the others
-    /// are left to `deposit`.
+    /// zero, truncation). `small` = the lanes whose three rounded values are below 2³¹ in
+    /// magnitude (so finite, and the conversion to integers here is exact: it is up to 2⁵¹);
+    /// the others are left to `deposit`.
     #[target_feature(enable = "avx2")]
     #[inline]
     pub(super) fn deposit_values(
@@ -1380,20 +1370,14 @@ mod avx {
         let (x, y) = (texel(ld(&uv[0]), w), texel(ld(&uv[1]), h));
         let wi = _mm256_cvttps_epi32(w);
         let index = _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(y, wi), x), _mm256_set1_epi32(3));
-        let mut out = super::DepositLanes {
-            index: [0; W],
-            value: [[0; W]; 3],
-            exact: u32::MAX,
-            small: u32::MAX,
-            shape: [0; W],
-        };
+        let mut out =
+            super::DepositLanes { index: [0; W], value: [[0; W]; 3], small: u32::MAX, shape: [0; W] };
         // SAFETY: 8 i32, unaligned store.
         unsafe { _mm256_storeu_si256(out.shape.as_mut_ptr().cast(), _mm256_castps_si256(field(ROW_SHAPE))) };
         let limit32 = _mm256_set1_pd(2_147_483_648.0); // 2³¹
         // SAFETY: 8 i32, unaligned store.
         unsafe { _mm256_storeu_si256(out.index.as_mut_ptr().cast(), index) };
         let magic = _mm256_set1_pd(6_755_399_441_055_744.0); // 1.5·2⁵²
-        let limit = _mm256_set1_pd(2_251_799_813_685_248.0); // 2⁵¹
         let sign = _mm256_set1_pd(-0.0);
         let half = _mm256_set1_pd(0.5);
         for half_lanes in 0..2 {
@@ -1404,9 +1388,6 @@ mod avx {
                 let b = unsafe { _mm_loadu_ps(beta_c.as_ptr().add(4 * half_lanes)) };
                 let q = _mm256_mul_pd(_mm256_cvtps_pd(b), f);
                 let r = _mm256_add_pd(q, _mm256_or_pd(half, _mm256_and_pd(q, sign)));
-                let fine = _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, r), limit);
-                let coarse = (!_mm256_movemask_pd(fine) & 0xf) as u32;
-                out.exact &= !(coarse << (4 * half_lanes));
                 let fits = _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, r), limit32);
                 let big = (!_mm256_movemask_pd(fits) & 0xf) as u32;
                 out.small &= !(big << (4 * half_lanes));
@@ -1419,8 +1400,7 @@ mod avx {
                 unsafe { _mm256_storeu_si256(out.value[c].as_mut_ptr().add(4 * half_lanes).cast(), v) };
             }
         }
-        out.exact &= (1 << W) - 1;
-        out.small &= out.exact;
+        out.small &= (1 << W) - 1;
         out
     }
 
@@ -1579,7 +1559,7 @@ impl Wavefront {
                     let dv = if tab.vector_deposits {
                         avx::deposit_values(rows, &tab.factor, &prim, &v.uv, &ln.beta)
                     } else {
-                        DepositLanes { index: [0; W], value: [[0; W]; 3], exact: 0, small: 0, shape: [0; W] }
+                        DepositLanes { index: [0; W], value: [[0; W]; 3], small: 0, shape: [0; W] }
                     };
                     // `deposit` of the lanes whose units fit the queue, straight into the sink
                     let quick = front & dv.small & mask(|l| dv.shape[l] >= 0);
@@ -1594,11 +1574,8 @@ impl Wavefront {
                     for l in lanes_of(front & !quick) {
                         let pr = &ctx.prims[prim[l] as usize];
                         let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
-                        let pre = (dv.exact & (1 << l) != 0).then(|| {
-                            (dv.index[l] as usize, [dv.value[0][l], dv.value[1][l], dv.value[2][l]])
-                        });
                         let uv = Vec2::new(v.uv[0][l], v.uv[1][l]);
-                        deposit(ctx.sink, ctx.bad, s, pr, uv, beta, ln.depth[l], pre);
+                        deposit(ctx.sink, ctx.bad, s, pr, uv, beta, ln.depth[l]);
                     }
                 }
                 if s.max_depth >= 0 {
@@ -1884,31 +1861,28 @@ impl Sink {
         Sink { maps, shapes, totals, ring: [Queued::default(); QUEUE], head: 0, len: 0 }
     }
 
+    /// Queues a deposit ([`Sink::push_small`]), or adds it at once when its units or index do
+    /// not fit the queue.
     #[inline]
     fn push(&mut self, p: Pending) {
-        let map = 2 * p.shape + p.direct as usize;
-        self.totals[p.shape] += p.value.iter().map(|v| v.unsigned_abs() as u128).sum::<u128>();
-        prefetch(&self.maps[map].fine[p.index]);
         let value = p.value.map(|v| v as i32);
-        if value.iter().zip(&p.value).any(|(&a, &b)| a as i64 != b) || p.index > u32::MAX as usize {
-            self.maps[map].add(p.index, p.value);
-            return;
+        if value.iter().zip(&p.value).all(|(&a, &b)| a as i64 == b) && p.index <= u32::MAX as usize {
+            self.push_small(p.shape, p.direct, p.index as u32, value);
+        } else {
+            self.totals[p.shape] += p.value.iter().map(|v| v.unsigned_abs() as u128).sum::<u128>();
+            self.maps[2 * p.shape + p.direct as usize].add(p.index, p.value);
         }
-        self.queue(Queued { map: map as u32, index: p.index as u32, value });
     }
 
-    /// [`Sink::push`] of a deposit whose units fit in `i32` (channel index `index` of the map
-    /// of `shape`, direct or indirect).
-    #[inline]
+    /// Queues a deposit whose units fit in `i32` (channel index `index` of the map of `shape`,
+    /// direct or indirect): counts it in the shape's total, prefetches its texel and adds the
+    /// deposit that leaves the queue.
+    #[inline(always)]
     fn push_small(&mut self, shape: usize, direct: bool, index: u32, value: [i32; 3]) {
         self.totals[shape] += value.iter().map(|v| v.unsigned_abs() as u64).sum::<u64>() as u128;
         let map = 2 * shape + direct as usize;
         prefetch(&self.maps[map].fine[index as usize]);
-        self.queue(Queued { map: map as u32, index, value });
-    }
-
-    #[inline(always)]
-    fn queue(&mut self, q: Queued) {
+        let q = Queued { map: map as u32, index, value };
         if self.len == QUEUE {
             let old = std::mem::replace(&mut self.ring[self.head], q);
             self.head = (self.head + 1) % QUEUE;
