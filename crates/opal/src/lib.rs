@@ -13,6 +13,7 @@
 //! * [`fastmath`] — fast f32 polynomial sincos/exp/ln/erf/erfinv and Fresnel for hot loops.
 //! * [`validate`] — χ² goodness-of-fit, quadrature helpers (product code: tests and CLI use it).
 //! * [`texture`] — texture lookups (Mitsuba `bitmap` semantics).
+//! * [`simd`] — the SIMD policy: instruction set detected once, lane types.
 //! * [`error`] — the library error type.
 #![warn(missing_docs)]
 
@@ -29,6 +30,7 @@ pub mod light;
 pub mod math;
 pub mod sampling;
 pub mod scene;
+pub mod simd;
 pub mod spectrum;
 pub mod texture;
 pub mod validate;

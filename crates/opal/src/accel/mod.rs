@@ -11,6 +11,7 @@
 //! * [`BruteForce`] tests every triangle; it is the reference the BVH is tested against.
 
 pub mod bvh;
+pub(crate) mod group;
 pub mod packet;
 pub mod scenes;
 pub mod tiny;

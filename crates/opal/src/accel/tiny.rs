@@ -5,8 +5,9 @@
 //! anyway, with the branchy ordered traversal on top. [`TinyAccel`] stores the triangles in
 //! groups of [`LANES`] in structure-of-arrays form (`v[vertex][axis][lane]`) and runs the
 //! watertight test of [`super::triangle`] on a whole group at once (the lane loops compile to
-//! 8-wide AVX intrinsics when the CPU has AVX — detected at run time — and to portable lane
-//! loops otherwise).
+//! 8-wide AVX intrinsics when the CPU has AVX2 — detected once, [`crate::simd`] — and to
+//! portable lane loops otherwise). The group kernel is shared with the BVH's leaves
+//! ([`super::group`]).
 //!
 //! **Same results as [`super::TriRay`]**: the per-ray shear is applied in the paper's form
 //! `a_kx − S_x a_kz` (Woop et al. 2013), which rounds exactly like `TriRay`'s dot products with
@@ -49,13 +50,15 @@
 //! soups and the Cornell box, watertightness on closed meshes).
 
 use super::Hit;
+pub use super::group::LANES;
+#[cfg(target_arch = "x86_64")]
+use super::group::{AvxRay, GroupAvx, group_avx};
+use super::group::{Group, ShearRay, closest_lane, group_portable};
 use super::triangle::TriRay;
 use crate::geometry::Ray;
 use crate::math::Vec3;
+#[cfg(target_arch = "x86_64")]
 use std::mem::MaybeUninit;
-
-/// Triangles per group (SIMD lanes).
-pub const LANES: usize = 8;
 
 /// Largest triangle count for which the scene uses [`TinyAccel`] instead of the BVH.
 pub const TINY_MAX: usize = 64;
@@ -64,149 +67,12 @@ pub const TINY_MAX: usize = 64;
 /// ([`TINY_MAX`] / [`LANES`]).
 const MAX_BRANCHLESS_GROUPS: usize = TINY_MAX / LANES;
 
-/// Eight triangles, structure of arrays: `v[vertex][axis][lane]`.
-#[derive(Clone, Copy, Debug)]
-#[repr(C, align(32))]
-struct Group {
-    v: [[[f32; LANES]; 3]; 3],
-}
-
-/// Per-ray constants: origin, axis permutation and shear (as in [`TriRay`]).
-#[derive(Clone, Copy)]
-struct ShearRay {
-    o: [f32; 3],
-    k: [usize; 3],
-    sx: f32,
-    sy: f32,
-    sz: f32,
-}
-
-impl ShearRay {
-    #[inline(always)]
-    fn new(ray: &Ray) -> Self {
-        // Same axis choice and constants as `TriRay::new`, without branches (random directions
-        // make them unpredictable): `kz` from the three comparisons, `(kx, ky)` from `kz` and the
-        // sign of `d[kz]`, by table.
-        const KZ: [u8; 8] = [2, 1, 2, 1, 2, 2, 0, 0];
-        const KXY: [[u8; 2]; 8] = [[1, 2], [2, 1], [2, 0], [0, 2], [0, 1], [1, 0], [0, 0], [0, 0]];
-        let d = ray.d;
-        let a = d.abs();
-        // `1/d` on all three axes at once, off the path from the comparisons to `kz`.
-        let inv = Vec3::ONE / d;
-        let idx = ((a.x > a.y) as usize) << 2 | ((a.x > a.z) as usize) << 1 | (a.y > a.z) as usize;
-        let kz = KZ[idx] as usize;
-        let da = [d.x, d.y, d.z, 0.0];
-        let ia = [inv.x, inv.y, inv.z, 0.0];
-        let [kx, ky] = KXY[(kz << 1 | (da[kz & 3] < 0.0) as usize) & 7];
-        let (kx, ky) = (kx as usize, ky as usize);
-        let sz = ia[kz & 3];
-        ShearRay { o: ray.o.to_array(), k: [kx, ky, kz], sx: da[kx & 3] * sz, sy: da[ky & 3] * sz, sz }
-    }
-}
-
-/// Hits of one group: `t`, barycentrics, hit mask, and mask of lanes with a zero edge function.
-struct GroupHits {
-    t: [f32; LANES],
-    b1: [f32; LANES],
-    b2: [f32; LANES],
-    hit: u32,
-    zero: u32,
-}
-
-/// The lane of `mask` (non-zero) with the smallest `t`, the lowest on ties.
-#[inline(always)]
-fn closest_lane(mask: u32, t: &[f32; LANES]) -> usize {
-    let mut m = mask;
-    let mut l = m.trailing_zeros() as usize;
-    m &= m - 1;
-    while m != 0 {
-        let j = m.trailing_zeros() as usize;
-        m &= m - 1;
-        if t[j] < t[l] {
-            l = j;
-        }
-    }
-    l
-}
-
-/// Per-ray constants of the AVX group test: axis permutation, permuted origin and shear, each
-/// broadcast to the 8 lanes.
-#[cfg(target_arch = "x86_64")]
-#[derive(Clone, Copy)]
-struct AvxRay {
-    k: [usize; 3],
-    o: [std::arch::x86_64::__m256; 3],
-    s: [std::arch::x86_64::__m256; 3],
-}
-
-#[cfg(target_arch = "x86_64")]
-impl AvxRay {
-    #[target_feature(enable = "avx")]
-    fn new(r: &ShearRay) -> Self {
-        use std::arch::x86_64::_mm256_set1_ps;
-        AvxRay {
-            k: r.k,
-            o: r.k.map(|k| _mm256_set1_ps(r.o[k])),
-            s: [_mm256_set1_ps(r.sx), _mm256_set1_ps(r.sy), _mm256_set1_ps(r.sz)],
-        }
-    }
-}
-
-/// The watertight test on the 8 triangles of a group (AVX), up to `t`: `zero` = lanes with an
-/// exactly-zero edge function (all bits set), `mixed` = sign bit set where the edge functions'
-/// signs differ (meaningful only without a zero edge function), `t = tt · (1/det)`, and `v`,
-/// `w`, `inv = 1/det` for the barycentrics `v · inv`, `w · inv`.
-#[cfg(target_arch = "x86_64")]
-struct GroupAvx {
-    zero: std::arch::x86_64::__m256,
-    mixed: std::arch::x86_64::__m256,
-    t: std::arch::x86_64::__m256,
-    v: std::arch::x86_64::__m256,
-    w: std::arch::x86_64::__m256,
-    inv: std::arch::x86_64::__m256,
-}
-
-/// See [`GroupAvx`]: `TriRay::intersect`'s arithmetic, 8 triangles per instruction.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-#[inline]
-fn group_avx(g: &Group, r: &AvxRay) -> GroupAvx {
-    use std::arch::x86_64::*;
-    let [kx, ky, kz] = r.k;
-    let ([ox, oy, oz], [sx, sy, sz]) = (r.o, r.s);
-    let zero = _mm256_setzero_ps();
-    // SAFETY: `Group` is 32-byte aligned and each `[f32; 8]` row is 32 bytes, so every row
-    // pointer is aligned and valid for 8 reads; the axes come from `ShearRay::new`'s tables,
-    // all < 3.
-    let ld = |v: usize, a: usize| unsafe { _mm256_load_ps(g.v[v].get_unchecked(a).as_ptr()) };
-    let mut px = [zero; 3];
-    let mut py = [zero; 3];
-    let mut pz = [zero; 3];
-    for v in 0..3 {
-        let az = _mm256_sub_ps(ld(v, kz), oz);
-        px[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, kx), ox), _mm256_mul_ps(sx, az));
-        py[v] = _mm256_sub_ps(_mm256_sub_ps(ld(v, ky), oy), _mm256_mul_ps(sy, az));
-        pz[v] = _mm256_mul_ps(sz, az);
-    }
-    let u = _mm256_sub_ps(_mm256_mul_ps(px[2], py[1]), _mm256_mul_ps(py[2], px[1]));
-    let v = _mm256_sub_ps(_mm256_mul_ps(px[0], py[2]), _mm256_mul_ps(py[0], px[2]));
-    let w = _mm256_sub_ps(_mm256_mul_ps(px[1], py[0]), _mm256_mul_ps(py[1], px[0]));
-    let eq0 = |x| _mm256_cmp_ps::<_CMP_EQ_OQ>(x, zero);
-    let zero_edge = _mm256_or_ps(_mm256_or_ps(eq0(u), eq0(v)), eq0(w));
-    let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
-    let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
-    let tt = _mm256_add_ps(
-        _mm256_add_ps(_mm256_mul_ps(u, pz[0]), _mm256_mul_ps(v, pz[1])),
-        _mm256_mul_ps(w, pz[2]),
-    );
-    let inv = _mm256_div_ps(_mm256_set1_ps(1.0), det);
-    GroupAvx { zero: zero_edge, mixed, t: _mm256_mul_ps(tt, inv), v, w, inv }
-}
-
 /// Flat all-triangles structure for tiny scenes (see the module docs).
 #[derive(Clone, Debug)]
 pub struct TinyAccel {
     groups: Vec<Group>,
+    /// AVX kernels (the instruction set detected once, [`crate::simd::isa`]).
+    avx: bool,
     /// The triangles as given (scalar fallback).
     tris: Vec<[Vec3; 3]>,
 }
@@ -214,17 +80,8 @@ pub struct TinyAccel {
 impl TinyAccel {
     /// Wraps a triangle soup (any size works; it pays up to a few dozen triangles).
     pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
-        let n_groups = tris.len().div_ceil(LANES);
-        let mut groups = vec![Group { v: [[[f32::NAN; LANES]; 3]; 3] }; n_groups];
-        for (i, t) in tris.iter().enumerate() {
-            let g = &mut groups[i / LANES];
-            for (v, p) in t.iter().enumerate() {
-                for a in 0..3 {
-                    g.v[v][a][i % LANES] = p[a];
-                }
-            }
-        }
-        TinyAccel { groups, tris }
+        let groups = tris.chunks(LANES).map(Group::new).collect();
+        TinyAccel { groups, avx: crate::simd::isa().avx2(), tris }
     }
 
     /// Number of triangles.
@@ -237,59 +94,13 @@ impl TinyAccel {
         self.tris.is_empty()
     }
 
-    /// The watertight test on the eight lanes of `g` (same arithmetic as `TriRay::intersect`).
-    #[inline(always)]
-    fn group(g: &Group, r: &ShearRay, tmax: f32) -> GroupHits {
-        let [kx, ky, kz] = r.k;
-        let mut px = [[0.0f32; LANES]; 3];
-        let mut py = [[0.0f32; LANES]; 3];
-        let mut pz = [[0.0f32; LANES]; 3];
-        for v in 0..3 {
-            for l in 0..LANES {
-                let ax = g.v[v][kx][l] - r.o[kx];
-                let ay = g.v[v][ky][l] - r.o[ky];
-                let az = g.v[v][kz][l] - r.o[kz];
-                px[v][l] = ax - r.sx * az;
-                py[v][l] = ay - r.sy * az;
-                pz[v][l] = r.sz * az;
-            }
-        }
-        let mut out = GroupHits { t: [0.0; LANES], b1: [0.0; LANES], b2: [0.0; LANES], hit: 0, zero: 0 };
-        let mut ok = [false; LANES];
-        let mut zero = [false; LANES];
-        // Non-short-circuit `|`/`&` so the lane loop has no branches (vectorises).
-        for l in 0..LANES {
-            let (ax, ay, bx, by, cx, cy) = (px[0][l], py[0][l], px[1][l], py[1][l], px[2][l], py[2][l]);
-            let u = cx * by - cy * bx;
-            let v = ax * cy - ay * cx;
-            let w = bx * ay - by * ax;
-            zero[l] = (u == 0.0) | (v == 0.0) | (w == 0.0);
-            let mixed = ((u < 0.0) | (v < 0.0) | (w < 0.0)) & ((u > 0.0) | (v > 0.0) | (w > 0.0));
-            let det = u + v + w;
-            let tt = u * pz[0][l] + v * pz[1][l] + w * pz[2][l];
-            let inv = 1.0 / det;
-            let t = tt * inv;
-            // `(tt > 0) == (det > 0)` and `det != 0` are implied by `t > 0` for finite values,
-            // but are kept to match `TriRay` exactly (e.g. tt = ±0, det = ±∞).
-            ok[l] = !mixed & (det != 0.0) & ((tt > 0.0) == (det > 0.0)) & (t > 0.0) & (t < tmax);
-            out.t[l] = t;
-            out.b1[l] = v * inv;
-            out.b2[l] = w * inv;
-        }
-        for l in 0..LANES {
-            out.hit |= (ok[l] as u32) << l;
-            out.zero |= (zero[l] as u32) << l;
-        }
-        out
-    }
-
     #[inline(always)]
     fn traverse<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
         let r = ShearRay::new(ray);
         let mut tmax = ray.tmax;
         let mut best = None;
         for (gi, g) in self.groups.iter().enumerate() {
-            let h = Self::group(g, &r, tmax);
+            let h = group_portable(g, &r, tmax);
             let base = gi * LANES;
             if h.zero != 0 {
                 // Rare: an edge function is exactly zero somewhere: the scalar test with its f64
@@ -449,12 +260,12 @@ impl TinyAccel {
     #[inline(always)]
     fn dispatch<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx") {
+        if self.avx {
             if !ANY && self.groups.len() <= MAX_BRANCHLESS_GROUPS {
-                // SAFETY: the CPU supports AVX (checked just above); the group count is in range.
+                // SAFETY: the CPU supports AVX2 (detected when built); the group count is in range.
                 return unsafe { self.closest_avx(ray) };
             }
-            // SAFETY: the CPU supports AVX (checked just above).
+            // SAFETY: the CPU supports AVX2 (detected when built).
             return unsafe { self.traverse_avx::<ANY>(ray) };
         }
         self.traverse::<ANY>(ray)
@@ -479,8 +290,8 @@ impl TinyAccel {
     /// search, for tests and benchmarks.
     pub fn intersect_sequential(&self, ray: &Ray) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx") {
-            // SAFETY: the CPU supports AVX (checked just above).
+        if self.avx {
+            // SAFETY: the CPU supports AVX2 (detected when built).
             return unsafe { self.traverse_avx::<false>(ray) };
         }
         self.traverse::<false>(ray)
@@ -527,23 +338,6 @@ mod tests {
             assert_eq!((h.prim, h.t), (i as u32, 1.0));
             let h = a.intersect(&Ray::new(Vec3::new(0.2, 0.2, 1.5), -Vec3::Z)).unwrap();
             assert_eq!((h.prim, h.t), (i as u32, 0.5));
-        }
-    }
-
-    #[test]
-    fn branch_free_axis_choice_matches_tri_ray() {
-        let vals = [0.0f32, -0.0, 1.0, -1.0, 0.5, -0.5, 2.0, -2.0, 1e-30, -3e38, f32::INFINITY, f32::NAN];
-        let same = |a: f32, b: f32| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
-        for &x in &vals {
-            for &y in &vals {
-                for &z in &vals {
-                    let d = Vec3::new(x, y, z);
-                    let r = ShearRay::new(&Ray::new(Vec3::ZERO, d));
-                    let (k, sx, sy, sz) = crate::accel::triangle::shear_axes(d);
-                    assert_eq!(r.k, k, "{d}");
-                    assert!(same(r.sx, sx) && same(r.sy, sy) && same(r.sz, sz), "{d}");
-                }
-            }
         }
     }
 

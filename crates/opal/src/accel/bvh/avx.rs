@@ -1,0 +1,104 @@
+//! AVX2 traversal of [`super::Bvh`]: the portable traversal's operations in the same order,
+//! eight boxes per instruction (`max`/`min` with the same NaN rule as the portable `if`s, no
+//! FMA), so the same nodes are visited and the same hit is returned, bit for bit.
+//!
+//! Tests: `super::tests::avx2_and_portable_traversals_agree_bit_for_bit`.
+
+use super::{BOX_FAR_SCALE, Bvh, Entry, LEAF, STACK, WIDTH, order_children};
+use crate::accel::Hit;
+use crate::accel::group::{AvxRay, LANES, ShearRay, group_hit_avx};
+use crate::geometry::Ray;
+use std::arch::x86_64::*;
+
+impl Bvh {
+    /// See [`Bvh::traverse`](super::Bvh): the same traversal with AVX2 box and group tests.
+    #[target_feature(enable = "avx2")]
+    pub(super) fn traverse_avx2<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
+        let o = [_mm256_set1_ps(ray.o.x), _mm256_set1_ps(ray.o.y), _mm256_set1_ps(ray.o.z)];
+        let inv_s = [1.0 / ray.d.x, 1.0 / ray.d.y, 1.0 / ray.d.z];
+        let inv = inv_s.map(|i| _mm256_set1_ps(i));
+        let near = inv_s.map(|i| (i < 0.0) as usize);
+        let scale = _mm256_set1_ps(BOX_FAR_SCALE);
+        let ar = AvxRay::new(&ShearRay::new(ray));
+        let mut tmax = ray.tmax;
+        let mut best: Option<Hit> = None;
+        let mut stack = [Entry::default(); STACK];
+        let mut sp = 0usize;
+        let mut cur = 0u32;
+        loop {
+            if cur & LEAF != 0 {
+                let g = (cur & !LEAF) as usize;
+                // SAFETY: leaf references are built from `groups` indices.
+                let group = unsafe { self.groups.get_unchecked(g) };
+                if let Some((l, t, b1, b2)) = group_hit_avx::<ANY>(group, &ar, ray, tmax) {
+                    tmax = t;
+                    best = Some(Hit { t, prim: self.prims[g * LANES + l], b1, b2 });
+                    if ANY {
+                        return best;
+                    }
+                }
+            } else {
+                // SAFETY: interior references are built from `nodes` indices.
+                let n = unsafe { self.nodes.get_unchecked(cur as usize) };
+                let mut t0 = _mm256_setzero_ps();
+                let mut t1 = _mm256_set1_ps(tmax);
+                for a in 0..3 {
+                    // SAFETY: `Node8` is 64-byte aligned and every plane row is 32 bytes at a
+                    // multiple of 32; `near[a]` is 0 or 1.
+                    let (pn, pf) = unsafe {
+                        (
+                            _mm256_load_ps(n.b.get_unchecked(near[a])[a].as_ptr()),
+                            _mm256_load_ps(n.b.get_unchecked(1 - near[a])[a].as_ptr()),
+                        )
+                    };
+                    let tn = _mm256_mul_ps(_mm256_sub_ps(pn, o[a]), inv[a]);
+                    let tf = _mm256_mul_ps(_mm256_mul_ps(_mm256_sub_ps(pf, o[a]), inv[a]), scale);
+                    // maxps(tn, t0) returns t0 when tn is NaN: the portable `if tn > t0`.
+                    t0 = _mm256_max_ps(tn, t0);
+                    t1 = _mm256_min_ps(tf, t1);
+                }
+                let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1)) as u32;
+                if mask == 0 {
+                    // fall through to the pop
+                } else if ANY {
+                    let mut tn = [0.0f32; WIDTH];
+                    // SAFETY: 8 floats, unaligned store.
+                    unsafe { _mm256_storeu_ps(tn.as_mut_ptr(), t0) };
+                    let mut m = mask;
+                    while m != 0 {
+                        let l = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        let c = n.child[l];
+                        if c & LEAF != 0 {
+                            let g = (c & !LEAF) as usize;
+                            // SAFETY: as above.
+                            let group = unsafe { self.groups.get_unchecked(g) };
+                            if let Some((l, t, b1, b2)) = group_hit_avx::<true>(group, &ar, ray, tmax) {
+                                return Some(Hit { t, prim: self.prims[g * LANES + l], b1, b2 });
+                            }
+                        } else {
+                            stack[sp] = Entry { child: c, tnear: tn[l] };
+                            sp += 1;
+                        }
+                    }
+                } else {
+                    let mut tn = [0.0f32; WIDTH];
+                    // SAFETY: 8 floats, unaligned store.
+                    unsafe { _mm256_storeu_ps(tn.as_mut_ptr(), t0) };
+                    cur = order_children(mask, &tn, &n.child, &mut stack, &mut sp);
+                    continue;
+                }
+            }
+            loop {
+                if sp == 0 {
+                    return best;
+                }
+                sp -= 1;
+                if stack[sp].tnear <= tmax {
+                    cur = stack[sp].child;
+                    break;
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,400 @@
+//! Bounding volume hierarchy over a triangle soup: binned SAH build, 8-wide nodes, leaves of
+//! eight triangles tested at once, ordered closest-hit and any-hit traversal (AVX2, with a
+//! portable fallback that gives the same hits).
+//!
+//! * **Build** ([`build`]): a binary tree by binned SAH with leaf *blocks* of eight triangles,
+//!   then collapsed into 8-wide nodes ([`collapse`]): each node repeatedly opens its
+//!   largest-area interior child until it has 8 children. Leaves hold at most eight triangles,
+//!   stored as one [`Group`] (structure of arrays, the kernel of [`crate::accel::group`]).
+//! * **Layout**: 256-byte nodes (four cache lines) holding the 8 children's boxes as
+//!   `b[lo/hi][axis][lane]` — one 32-byte row per plane, so the slab test of the 8 boxes is
+//!   six aligned loads — and per child a reference: an interior node index, a leaf group
+//!   (`LEAF` bit + group index) or empty. Groups are stored in the depth-first order in which
+//!   the collapse meets them, next to their siblings.
+//! * **Traversal**: closest-hit tests the 8 boxes at once, visits the hit children nearest
+//!   first and pushes the others with their entry distance (skipped on pop once a closer hit is
+//!   known); any-hit tests leaf children as soon as their box is hit and returns at the first
+//!   hit, without barycentrics ordering. The slab test selects near/far planes by the sign of
+//!   the direction, ignores NaN from `0 · ∞` (treated as not constraining) and widens the far
+//!   distance by `1 + 2γ₃` (pbrt-v4's conservative box test), so the BVH never culls a triangle
+//!   the watertight test ([`super::triangle`]) would hit.
+//! * **SIMD**: [`crate::simd::isa`] is read once at build time. The AVX2 traversal
+//!   (`avx.rs`) performs the portable traversal's operations in the same order (no FMA; `max`/
+//!   `min` with the same NaN rule), so both visit the same nodes and return the same hit, bit for
+//!   bit (tested).
+//! * **Packets**: [`Bvh::intersect8`] answers eight rays (one [`RayPacket`]); on this incoherent
+//!   workload (light paths) each lane runs the single-ray traversal.
+//!
+//! Tests: unit tests below; `crates/opal/tests/accel.rs` (against brute force on random soups
+//! and meshes with proptest, watertightness, self-intersection); benchmarks:
+//! `examples/accel_compare.rs`, `benches/accel.rs`, `bench/accel_vs_embree.sh`.
+
+#[cfg(target_arch = "x86_64")]
+mod avx;
+mod build;
+
+pub use build::{BINS, MAX_LEAF, PAR_THRESHOLD, SahParams};
+
+use super::Hit;
+use super::group::{Group, LANES, ShearRay, group_hit_portable};
+use super::packet::{PACKET, PacketHits, RayPacket};
+use crate::geometry::Ray;
+use crate::math::Vec3;
+use build::BuildNode;
+
+/// Children per node.
+pub const WIDTH: usize = 8;
+
+/// `1 + 2γ₃` with `γₙ = n u / (1 − n u)`, `u = 2⁻²⁴` (pbrt-v4, robust box test).
+const BOX_FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+
+/// Traversal stack size: each node pushes at most 7 entries and the 8-wide tree is no deeper
+/// than the binary one.
+const STACK: usize = (WIDTH - 1) * build::MAX_DEPTH + WIDTH;
+
+/// A child reference: interior node index, `LEAF | group`, or [`EMPTY`].
+const LEAF: u32 = 1 << 31;
+/// An empty child slot (its box is empty: no ray enters it).
+const EMPTY: u32 = u32::MAX;
+
+/// 8-wide node, 256 bytes: the children's boxes `b[0 = lo, 1 = hi][axis][child]` and references.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+struct Node8 {
+    b: [[[f32; WIDTH]; 3]; 2],
+    child: [u32; WIDTH],
+}
+
+impl Node8 {
+    const EMPTY: Node8 =
+        Node8 { b: [[[f32::INFINITY; WIDTH]; 3], [[f32::NEG_INFINITY; WIDTH]; 3]], child: [EMPTY; WIDTH] };
+}
+
+/// Collapses the binary tree under `node` into 8-wide nodes (each node opens its largest-area
+/// interior child until it has 8 children); leaves become groups of `tris` (in `refs` order).
+/// Returns the index of the node.
+fn collapse(node: &BuildNode, refs: &[build::PrimRef], tris: &[[Vec3; 3]], out: &mut Bvh) -> u32 {
+    let idx = out.nodes.len();
+    out.nodes.push(Node8::EMPTY);
+    let mut kids: Vec<&BuildNode> = match node {
+        BuildNode::Interior { children, .. } => vec![&children[0], &children[1]],
+        BuildNode::Leaf { .. } => vec![node],
+    };
+    while kids.len() < WIDTH {
+        let open = kids
+            .iter()
+            .enumerate()
+            .filter(|(_, k)| matches!(k, BuildNode::Interior { .. }))
+            .max_by(|a, b| a.1.bounds().half_area().total_cmp(&b.1.bounds().half_area()))
+            .map(|(i, _)| i);
+        let Some(i) = open else { break };
+        let BuildNode::Interior { children, .. } = kids[i] else { unreachable!() };
+        kids[i] = &children[0];
+        kids.insert(i + 1, &children[1]);
+    }
+    let mut n = Node8::EMPTY;
+    for (slot, k) in kids.iter().enumerate() {
+        let b = k.bounds();
+        for a in 0..3 {
+            n.b[0][a][slot] = b.min[a];
+            n.b[1][a][slot] = b.max[a];
+        }
+        n.child[slot] = match k {
+            BuildNode::Leaf { start, count, .. } => {
+                let (start, count) = (*start as usize, *count as usize);
+                debug_assert!(count <= LANES);
+                let g = out.groups.len() as u32;
+                let leaf: Vec<[Vec3; 3]> =
+                    refs[start..start + count].iter().map(|r| tris[r.idx as usize]).collect();
+                out.groups.push(Group::new(&leaf));
+                let mut prims = [u32::MAX; LANES];
+                for (p, r) in prims.iter_mut().zip(&refs[start..start + count]) {
+                    *p = r.idx;
+                }
+                out.prims.extend_from_slice(&prims);
+                LEAF | g
+            }
+            BuildNode::Interior { .. } => collapse(k, refs, tris, out),
+        };
+    }
+    out.nodes[idx] = n;
+    idx as u32
+}
+
+/// Per-ray constants of the slab test.
+#[derive(Clone, Copy)]
+struct BoxRay {
+    o: [f32; 3],
+    inv: [f32; 3],
+    /// Per axis, the index of the near plane in `Node8::b` (1 = maxima, for negative directions).
+    near: [usize; 3],
+}
+
+impl BoxRay {
+    #[inline(always)]
+    fn new(ray: &Ray) -> Self {
+        let inv = [1.0 / ray.d.x, 1.0 / ray.d.y, 1.0 / ray.d.z];
+        BoxRay { o: ray.o.to_array(), inv, near: inv.map(|i| (i < 0.0) as usize) }
+    }
+
+    /// Entry distances of the eight child boxes and the mask of those overlapping `(0, tmax)`.
+    #[inline(always)]
+    fn hit8(&self, n: &Node8, tmax: f32) -> ([f32; WIDTH], u32) {
+        let mut t0 = [0.0f32; WIDTH];
+        let mut t1 = [tmax; WIDTH];
+        for a in 0..3 {
+            let (near, far) = (&n.b[self.near[a]][a], &n.b[1 - self.near[a]][a]);
+            for l in 0..WIDTH {
+                let tn = (near[l] - self.o[a]) * self.inv[a];
+                let tf = (far[l] - self.o[a]) * self.inv[a] * BOX_FAR_SCALE;
+                // `if` rather than f32::max/min: one maxps/minps each, and a NaN `tn`/`tf`
+                // (0 · ∞) leaves the bound unchanged, i.e. does not constrain (conservative).
+                t0[l] = if tn > t0[l] { tn } else { t0[l] };
+                t1[l] = if tf < t1[l] { tf } else { t1[l] };
+            }
+        }
+        let mut mask = 0;
+        for l in 0..WIDTH {
+            mask |= ((t0[l] <= t1[l]) as u32) << l;
+        }
+        (t0, mask)
+    }
+}
+
+/// A pending child on the traversal stack.
+#[derive(Clone, Copy, Default)]
+struct Entry {
+    child: u32,
+    tnear: f32,
+}
+
+/// Pushes the children of `mask` except the nearest onto `stack` (farthest deepest) and returns
+/// the nearest. Children are ordered by entry distance, then by reference (deterministic).
+#[inline(always)]
+fn order_children(
+    mask: u32,
+    tn: &[f32; WIDTH],
+    child: &[u32; WIDTH],
+    stack: &mut [Entry],
+    sp: &mut usize,
+) -> u32 {
+    debug_assert!(mask != 0);
+    let first = mask.trailing_zeros() as usize;
+    let rest = mask & (mask - 1);
+    if rest == 0 {
+        return child[first];
+    }
+    // Entry distances are ≥ 0 (never NaN), so their bits order like the floats.
+    let key = |l: usize| (tn[l].to_bits() as u64) << 32 | child[l] as u64;
+    if rest & (rest - 1) == 0 {
+        let second = rest.trailing_zeros() as usize;
+        let (a, b) = (key(first), key(second));
+        let (near, far) = if a <= b { (a, b) } else { (b, a) };
+        stack[*sp] = Entry { child: far as u32, tnear: f32::from_bits((far >> 32) as u32) };
+        *sp += 1;
+        return near as u32;
+    }
+    let mut keys = [0u64; WIDTH];
+    let mut h = 0;
+    let mut m = mask;
+    while m != 0 {
+        let l = m.trailing_zeros() as usize;
+        m &= m - 1;
+        let k = key(l);
+        let mut j = h;
+        while j > 0 && keys[j - 1] > k {
+            keys[j] = keys[j - 1];
+            j -= 1;
+        }
+        keys[j] = k;
+        h += 1;
+    }
+    for &k in keys[1..h].iter().rev() {
+        stack[*sp] = Entry { child: k as u32, tnear: f32::from_bits((k >> 32) as u32) };
+        *sp += 1;
+    }
+    keys[0] as u32
+}
+
+/// SAH bounding volume hierarchy of 8-wide nodes over a triangle soup (see the module docs).
+#[derive(Clone, Debug)]
+pub struct Bvh {
+    nodes: Vec<Node8>,
+    /// Leaves: eight triangles each (NaN in unused lanes).
+    groups: Vec<Group>,
+    /// Input index of each group lane (`u32::MAX` for unused lanes).
+    prims: Vec<u32>,
+    bounds: (Vec3, Vec3),
+    len: usize,
+    /// Whether the AVX2 traversal runs ([`crate::simd::isa`], read at build time).
+    avx2: bool,
+}
+
+impl Bvh {
+    /// Builds the hierarchy with the default SAH constants (parallel on the rayon pool).
+    /// Degenerate triangles are accepted and never hit.
+    ///
+    /// # Panics
+    /// If there are `2³¹` triangles or more.
+    pub fn new(tris: Vec<[Vec3; 3]>) -> Bvh {
+        Bvh::with_params(&tris, SahParams::default())
+    }
+
+    /// Builds the hierarchy with the given SAH constants.
+    ///
+    /// # Panics
+    /// If there are `2³¹` triangles or more.
+    pub fn with_params(tris: &[[Vec3; 3]], sah: SahParams) -> Bvh {
+        assert!(tris.len() < LEAF as usize, "too many triangles for a Bvh");
+        let (root, refs) = build::build(tris, sah);
+        let mut bvh = Bvh {
+            nodes: Vec::with_capacity(tris.len() / 8 + 1),
+            groups: Vec::with_capacity(tris.len() / 4 + 1),
+            prims: Vec::new(),
+            bounds: (Vec3::INFINITY, Vec3::NEG_INFINITY),
+            len: tris.len(),
+            avx2: crate::simd::isa().avx2(),
+        };
+        match root {
+            None => bvh.nodes.push(Node8::EMPTY),
+            Some(root) => {
+                collapse(&root, &refs, tris, &mut bvh);
+                let b = root.bounds();
+                bvh.bounds = (b.min, b.max);
+            }
+        }
+        bvh
+    }
+
+    /// The same hierarchy with the portable traversal forced (for tests and comparisons).
+    pub fn portable(mut self) -> Bvh {
+        self.avx2 = false;
+        self
+    }
+
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether there are no triangles.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Bounds `(min, max)` of all triangles (`min > max` when empty).
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        self.bounds
+    }
+
+    /// Number of 8-wide nodes.
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Number of leaves (groups of up to eight triangles).
+    pub fn leaf_count(&self) -> usize {
+        self.groups.len()
+    }
+
+    /// Bytes used by nodes, leaves and the triangle index map.
+    pub fn memory_bytes(&self) -> usize {
+        self.nodes.len() * size_of::<Node8>() + self.groups.len() * size_of::<Group>() + self.prims.len() * 4
+    }
+
+    /// The portable traversal (lane loops); the AVX2 one does the same operations.
+    #[inline(always)]
+    fn traverse<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
+        let br = BoxRay::new(ray);
+        let sr = ShearRay::new(ray);
+        let mut tmax = ray.tmax;
+        let mut best: Option<Hit> = None;
+        let mut stack = [Entry::default(); STACK];
+        let mut sp = 0usize;
+        let mut cur = 0u32;
+        loop {
+            if cur & LEAF != 0 {
+                let g = (cur & !LEAF) as usize;
+                if let Some((l, t, b1, b2)) = group_hit_portable::<ANY>(&self.groups[g], &sr, ray, tmax) {
+                    tmax = t;
+                    best = Some(Hit { t, prim: self.prims[g * LANES + l], b1, b2 });
+                    if ANY {
+                        return best;
+                    }
+                }
+            } else {
+                let n = &self.nodes[cur as usize];
+                let (tn, mask) = br.hit8(n, tmax);
+                if ANY {
+                    let mut m = mask;
+                    while m != 0 {
+                        let l = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        let c = n.child[l];
+                        if c & LEAF != 0 {
+                            let g = (c & !LEAF) as usize;
+                            if let Some((l, t, b1, b2)) =
+                                group_hit_portable::<true>(&self.groups[g], &sr, ray, tmax)
+                            {
+                                return Some(Hit { t, prim: self.prims[g * LANES + l], b1, b2 });
+                            }
+                        } else {
+                            stack[sp] = Entry { child: c, tnear: tn[l] };
+                            sp += 1;
+                        }
+                    }
+                } else if mask != 0 {
+                    cur = order_children(mask, &tn, &n.child, &mut stack, &mut sp);
+                    continue;
+                }
+            }
+            // Pop the next item still in range.
+            loop {
+                if sp == 0 {
+                    return best;
+                }
+                sp -= 1;
+                if stack[sp].tnear <= tmax {
+                    cur = stack[sp].child;
+                    break;
+                }
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn dispatch<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: the CPU supports AVX2 (detected when the BVH was built).
+            return unsafe { self.traverse_avx2::<ANY>(ray) };
+        }
+        self.traverse::<ANY>(ray)
+    }
+
+    /// Closest hit with `0 < t < ray.tmax`.
+    #[inline]
+    pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.dispatch::<false>(ray)
+    }
+
+    /// Whether any triangle is hit with `0 < t < ray.tmax`.
+    #[inline]
+    pub fn occluded(&self, ray: &Ray) -> bool {
+        self.dispatch::<true>(ray).is_some()
+    }
+
+    /// Closest hits of the eight rays of a packet (lanes with `tmax ≤ 0` are inactive and miss).
+    pub fn intersect8(&self, rays: &RayPacket) -> PacketHits {
+        let mut h = PacketHits::NONE;
+        for l in 0..PACKET {
+            if rays.tmax[l] > 0.0 {
+                h.set(l, self.intersect(&rays.ray(l)));
+            }
+        }
+        h
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,154 @@
+//! Unit tests of the 8-wide BVH (more in `crates/opal/tests/accel.rs`).
+
+use super::*;
+use crate::accel::BruteForce;
+use crate::sampling::Rng;
+
+#[test]
+fn node_layout() {
+    assert_eq!(size_of::<Node8>(), 256);
+    assert_eq!(align_of::<Node8>(), 64);
+}
+
+#[test]
+fn empty_and_single() {
+    let b = Bvh::new(vec![]);
+    assert!(b.is_empty() && b.intersect(&Ray::new(Vec3::ZERO, Vec3::X)).is_none());
+    assert!(!b.occluded(&Ray::new(Vec3::ZERO, Vec3::X)));
+    let tri = [Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.0, 1.0, 1.0)];
+    let b = Bvh::new(vec![tri]);
+    let h = b.intersect(&Ray::new(Vec3::new(0.1, 0.1, 0.0), Vec3::Z)).unwrap();
+    assert_eq!(h.prim, 0);
+    assert!((h.t - 1.0).abs() < 1e-6);
+    assert!(b.occluded(&Ray::new(Vec3::new(0.1, 0.1, 0.0), Vec3::Z)));
+    assert_eq!(b.bounds(), (Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 1.0, 1.0)));
+}
+
+#[test]
+fn many_identical_and_degenerate() {
+    // 100 copies of one triangle plus 100 points: centroids coincide, must not recurse forever,
+    // and leaves still hold at most eight triangles.
+    let tri = [Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.0, 1.0, 1.0)];
+    let mut tris = vec![tri; 100];
+    tris.extend(std::iter::repeat_n([Vec3::new(0.2, 0.2, 0.5); 3], 100));
+    let b = Bvh::new(tris);
+    assert_eq!(b.len(), 200);
+    assert!(b.leaf_count() >= 200 / LANES);
+    let h = b.intersect(&Ray::new(Vec3::new(0.2, 0.2, 0.0), Vec3::Z)).unwrap();
+    assert!(h.prim < 100 && (h.t - 1.0).abs() < 1e-6);
+}
+
+#[test]
+fn axis_parallel_ray_on_box_face() {
+    // The ray runs inside the plane x = 0 of the boxes' faces (0·∞ = NaN in the slab test).
+    let tris: Vec<[Vec3; 3]> = (0..64)
+        .map(|i| {
+            let z = i as f32;
+            [Vec3::new(0.0, -1.0, z), Vec3::new(1.0, -1.0, z), Vec3::new(0.0, 1.0, z)]
+        })
+        .collect();
+    for b in [Bvh::new(tris.clone()), Bvh::new(tris.clone()).portable()] {
+        let h = b.intersect(&Ray::new(Vec3::new(0.0, 0.0, 10.5), Vec3::Z)).unwrap();
+        assert_eq!(h.prim, 11);
+        let h = b.intersect(&Ray::new(Vec3::new(0.0, 0.0, 10.5), -Vec3::Z)).unwrap();
+        assert_eq!(h.prim, 10);
+    }
+}
+
+/// Every input triangle sits in exactly one leaf lane, every leaf has 1..=8 of them, and every
+/// child box contains its subtree.
+#[test]
+fn every_triangle_in_one_leaf_and_boxes_contain_their_subtrees() {
+    let tris = crate::accel::scenes::random_soup(5000, 0.05, 3);
+    for sah in [SahParams::default(), SahParams { traversal: 1.0, block: 8 }] {
+        let b = Bvh::with_params(&tris, sah);
+        let mut seen = vec![0u32; tris.len()];
+        for (g, lanes) in b.prims.chunks(LANES).enumerate() {
+            let used: Vec<u32> = lanes.iter().copied().filter(|&p| p != u32::MAX).collect();
+            assert!(!used.is_empty() && used.len() <= LANES);
+            for (l, &p) in used.iter().enumerate() {
+                seen[p as usize] += 1;
+                assert_eq!(b.groups[g].triangle(l), tris[p as usize]);
+            }
+        }
+        assert!(seen.iter().all(|&c| c == 1));
+        fn check(b: &Bvh, node: usize, lo: Vec3, hi: Vec3, tris: &[[Vec3; 3]]) {
+            let n = &b.nodes[node];
+            for s in 0..WIDTH {
+                let c = n.child[s];
+                if c == EMPTY {
+                    continue;
+                }
+                let clo = Vec3::new(n.b[0][0][s], n.b[0][1][s], n.b[0][2][s]);
+                let chi = Vec3::new(n.b[1][0][s], n.b[1][1][s], n.b[1][2][s]);
+                assert!(clo.cmpge(lo).all() && chi.cmple(hi).all());
+                if c & LEAF != 0 {
+                    let g = (c & !LEAF) as usize;
+                    for l in 0..LANES {
+                        let p = b.prims[g * LANES + l];
+                        if p != u32::MAX {
+                            for v in tris[p as usize] {
+                                assert!(v.cmpge(clo).all() && v.cmple(chi).all());
+                            }
+                        }
+                    }
+                } else {
+                    check(b, c as usize, clo, chi, tris);
+                }
+            }
+        }
+        check(&b, 0, b.bounds.0, b.bounds.1, &tris);
+    }
+}
+
+/// The AVX2 and the portable traversals visit the same nodes and return the same hit, bit for
+/// bit, and both agree with brute force (ties aside).
+#[test]
+fn avx2_and_portable_traversals_agree_bit_for_bit() {
+    let bits = |h: Option<Hit>| h.map(|h| (h.prim, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()));
+    let mesh = crate::accel::scenes::sphere_mesh(40, 80, 0.02, 1);
+    let mut tris = crate::accel::scenes::mesh_triangles(&mesh);
+    tris.extend(crate::accel::scenes::random_soup(300, 0.3, 9));
+    let fast = Bvh::new(tris.clone());
+    let port = Bvh::new(tris.clone()).portable();
+    let bf = BruteForce::new(tris.clone());
+    for i in 0..20_000u64 {
+        let mut rng = Rng::new(4, 1, i);
+        let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 3.0 - 1.5;
+        let mut d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+        match i % 7 {
+            1 => d.x = 0.0,
+            2 => (d.y, d.z) = (-0.0, 0.0),
+            _ => {}
+        }
+        let tmax = if i % 3 == 0 { rng.next_f32() * 2.0 } else { f32::INFINITY };
+        let ray = Ray { o, d, tmax };
+        let a = fast.intersect(&ray);
+        assert_eq!(bits(a), bits(port.intersect(&ray)), "{ray:?}");
+        assert_eq!(fast.occluded(&ray), port.occluded(&ray), "{ray:?}");
+        let b = bf.intersect(&ray);
+        assert_eq!(a.map(|h| h.t.to_bits()), b.map(|h| h.t.to_bits()), "{ray:?}");
+        assert_eq!(fast.occluded(&ray), bf.occluded(&ray), "{ray:?}");
+    }
+}
+
+#[test]
+fn packets_answer_like_single_rays() {
+    let tris = crate::accel::scenes::random_soup(500, 0.2, 2);
+    let b = Bvh::new(tris);
+    let mut rp = RayPacket::default();
+    let mut rays = Vec::new();
+    for l in 0..PACKET {
+        let mut rng = Rng::new(7, 2, l as u64);
+        let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 3.0 - 1.5;
+        let d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+        let r = Ray { o, d, tmax: if l == 3 { 0.0 } else { f32::INFINITY } };
+        rp.set(l, &r);
+        rays.push(r);
+    }
+    let h = b.intersect8(&rp);
+    for (l, r) in rays.iter().enumerate() {
+        let want = if l == 3 { None } else { b.intersect(r) };
+        assert_eq!(h.hit(l), want);
+    }
+}
