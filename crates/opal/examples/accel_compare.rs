@@ -13,6 +13,7 @@ use obvhs::BvhBuildParams;
 use obvhs::cwbvh::CwBvh;
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use opal::accel::scenes::{cornell_box, mesh_triangles, sphere_mesh};
+use opal::accel::bvh::SahParams;
 use opal::accel::{Bvh, Hit, TriRay};
 use opal::geometry::Ray;
 use opal::math::Vec3;
@@ -159,6 +160,16 @@ fn report(name: &str, n: usize, secs: Vec<(f64, f64)>) {
     );
 }
 
+/// SAH constants: the defaults, or `SAH_TRAV` / `SAH_BLOCK` from the environment (for tuning).
+fn sah_params() -> SahParams {
+    let d = SahParams::default();
+    let var = |k: &str| std::env::var(k).ok();
+    SahParams {
+        traversal: var("SAH_TRAV").map_or(d.traversal, |v| v.parse().expect("SAH_TRAV")),
+        block: var("SAH_BLOCK").map_or(d.block, |v| v.parse().expect("SAH_BLOCK")),
+    }
+}
+
 fn run_scene(label: &str, tris: Vec<[Vec3; 3]>, rays: &[Ray], repeats: usize) {
     println!("== {label}: {} triangles, {} rays", tris.len(), rays.len());
     let mut tb = Vec::new();
@@ -167,7 +178,7 @@ fn run_scene(label: &str, tris: Vec<[Vec3; 3]>, rays: &[Ray], repeats: usize) {
     let mut ob = None;
     let (mut tbc, mut toc) = (Vec::new(), Vec::new());
     for _ in 0..repeats.min(5) {
-        let (s, c, b) = time(|| Bvh::new(tris.clone()));
+        let (s, c, b) = time(|| Bvh::with_params(&tris, sah_params()));
         tb.push(s);
         tbc.push(c);
         bvh = Some(b);
@@ -178,13 +189,15 @@ fn run_scene(label: &str, tris: Vec<[Vec3; 3]>, rays: &[Ray], repeats: usize) {
     }
     let (bvh, ob) = (bvh.unwrap(), ob.unwrap());
     println!(
-        "build: opal {:8.1} ms (CPU {:8.1} ms)   obvhs {:8.1} ms (CPU {:8.1} ms)   (median of {}; opal nodes {})",
+        "build: opal {:8.1} ms (CPU {:8.1} ms)   obvhs {:8.1} ms (CPU {:8.1} ms)   (median of {}; opal nodes {}, leaves {}, {:.1} MB)",
         median(tb) * 1e3,
         median(tbc) * 1e3,
         median(to) * 1e3,
         median(toc) * 1e3,
         repeats.min(5),
-        bvh.node_count()
+        bvh.node_count(),
+        bvh.leaf_count(),
+        bvh.memory_bytes() as f64 / 1e6
     );
     // Same answers (t identical: same triangle test; prims may differ on exact ties).
     let (ha, sa) = trace(rays, |r| bvh.intersect(r));

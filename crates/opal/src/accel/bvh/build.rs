@@ -32,7 +32,7 @@ pub struct SahParams {
 
 impl Default for SahParams {
     fn default() -> Self {
-        SahParams { traversal: 1.0, block: 1 }
+        SahParams { traversal: 1.0, block: 8 }
     }
 }
 /// Subtrees larger than this are built in parallel.
