@@ -1,0 +1,319 @@
+//! The vector steps of the [`Wavefront`](super::wavefront::Wavefront) in AVX2 (x86-64 only):
+//! the same IEEE operations in the same order as the scalar code they mirror (named on each
+//! function), hence the same bits.
+//!
+//! Tests (`tests.rs`): `simd_generators_draw_the_scalar_numbers`, and the identical sums of the
+//! wavefront and the one-path-at-a-time engine.
+
+use super::starts::{StartIn, StartOut, start_lanes};
+use super::wavefront::{
+    DepositLanes, FLAG_BITMAP, FLAG_TWO_SIDED, ROW_FLAGS, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG, ROW_NG_OFF,
+    ROW_SHAPE, ROW_SIZE, ROW_UV,
+};
+use super::wavefront::{Row, ScatterIn, ScatterOut, VertexLanes, W, scatter_lanes};
+use crate::accel::packet::{PacketHits, RayPacket};
+use std::arch::x86_64::*;
+
+#[inline(always)]
+fn ld(a: &[f32; W]) -> __m256 {
+    // SAFETY: 8 floats, unaligned load.
+    unsafe { _mm256_loadu_ps(a.as_ptr()) }
+}
+#[inline(always)]
+fn st(a: &mut [f32; W], v: __m256) {
+    // SAFETY: 8 floats, unaligned store.
+    unsafe { _mm256_storeu_ps(a.as_mut_ptr(), v) }
+}
+#[inline(always)]
+fn st_mask(a: &mut [u32; W], v: __m256) {
+    // SAFETY: 8 u32, unaligned store.
+    unsafe { _mm256_storeu_ps(a.as_mut_ptr().cast(), v) }
+}
+/// Lane `l` all ones iff bit `l` of `b`.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn lane_mask(b: u32) -> __m256 {
+    let one = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(b as i32), one), one))
+}
+#[target_feature(enable = "avx2")]
+#[inline]
+fn bits(m: __m256) -> u32 {
+    _mm256_movemask_ps(m) as u32
+}
+
+/// [`crate::sampling::Rng::next_f32`] of the eight generators `(state, inc)` whose lane is in
+/// `m` (the others keep their state; their numbers are meaningless): the same 64-bit
+/// arithmetic (the product modulo 2⁶⁴ from three 32×32-bit products), output permutation
+/// and conversion, hence the same numbers.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn next_f32_lanes(state: &mut [u64; W], inc: &[u64; W], m: u32) -> [f32; W] {
+    let mult = crate::sampling::Rng::MULT;
+    let (m_lo, m_hi) = (_mm256_set1_epi64x(mult as i64), _mm256_set1_epi64x((mult >> 32) as i64));
+    let low32 = _mm256_set1_epi64x(0xffff_ffff);
+    let mut out = [_mm256_setzero_si256(); 2];
+    for (h, o) in out.iter_mut().enumerate() {
+        // SAFETY: 4 u64 of an 8-u64 array, unaligned loads and store.
+        let old = unsafe { _mm256_loadu_si256(state.as_ptr().add(4 * h).cast()) };
+        let inc = unsafe { _mm256_loadu_si256(inc.as_ptr().add(4 * h).cast()) };
+        let lo_lo = _mm256_mul_epu32(old, m_lo);
+        let cross = _mm256_add_epi64(
+            _mm256_mul_epu32(_mm256_srli_epi64::<32>(old), m_lo),
+            _mm256_mul_epu32(old, m_hi),
+        );
+        let new = _mm256_add_epi64(_mm256_add_epi64(lo_lo, _mm256_slli_epi64::<32>(cross)), inc);
+        let bits = _mm256_set1_epi64x(((m >> (4 * h)) & 0xf) as i64);
+        let one = _mm256_setr_epi64x(1, 2, 4, 8);
+        let take = _mm256_cmpeq_epi64(_mm256_and_si256(bits, one), one);
+        let next = _mm256_blendv_epi8(old, new, take);
+        // SAFETY: as above.
+        unsafe { _mm256_storeu_si256(state.as_mut_ptr().add(4 * h).cast(), next) };
+        // ((old >> 18) ^ old) >> 27, low 32 bits, rotated right by old >> 59
+        let x = _mm256_and_si256(
+            _mm256_srli_epi64::<27>(_mm256_xor_si256(_mm256_srli_epi64::<18>(old), old)),
+            low32,
+        );
+        let rot = _mm256_srli_epi64::<59>(old);
+        let left = _mm256_sllv_epi64(x, _mm256_sub_epi64(_mm256_set1_epi64x(32), rot));
+        *o = _mm256_or_si256(_mm256_srlv_epi64(x, rot), _mm256_and_si256(left, low32));
+    }
+    // the low 32 bits of the eight 64-bit results, in lane order
+    let pick = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+    let (a, b) = (_mm256_permutevar8x32_epi32(out[0], pick), _mm256_permutevar8x32_epi32(out[1], pick));
+    let u = _mm256_blend_epi32::<0xf0>(a, b);
+    let f = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(u)), _mm256_set1_ps(1.0 / 16_777_216.0));
+    let mut r = [0.0; W];
+    st(&mut r, f);
+    r
+}
+
+/// The 8×8 transpose: `out[k][l] = rows[l][k]`.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn transpose8(r: [__m256; 8]) -> [__m256; 8] {
+    let lo = |a, b| _mm256_unpacklo_ps(a, b);
+    let hi = |a, b| _mm256_unpackhi_ps(a, b);
+    let (t0, t1, t2, t3) = (lo(r[0], r[1]), hi(r[0], r[1]), lo(r[2], r[3]), hi(r[2], r[3]));
+    let (t4, t5, t6, t7) = (lo(r[4], r[5]), hi(r[4], r[5]), lo(r[6], r[7]), hi(r[6], r[7]));
+    let (s0, s1) = (_mm256_shuffle_ps::<0x44>(t0, t2), _mm256_shuffle_ps::<0xEE>(t0, t2));
+    let (s2, s3) = (_mm256_shuffle_ps::<0x44>(t1, t3), _mm256_shuffle_ps::<0xEE>(t1, t3));
+    let (s4, s5) = (_mm256_shuffle_ps::<0x44>(t4, t6), _mm256_shuffle_ps::<0xEE>(t4, t6));
+    let (s6, s7) = (_mm256_shuffle_ps::<0x44>(t5, t7), _mm256_shuffle_ps::<0xEE>(t5, t7));
+    [
+        _mm256_permute2f128_ps::<0x20>(s0, s4),
+        _mm256_permute2f128_ps::<0x20>(s1, s5),
+        _mm256_permute2f128_ps::<0x20>(s2, s6),
+        _mm256_permute2f128_ps::<0x20>(s3, s7),
+        _mm256_permute2f128_ps::<0x31>(s0, s4),
+        _mm256_permute2f128_ps::<0x31>(s1, s5),
+        _mm256_permute2f128_ps::<0x31>(s2, s6),
+        _mm256_permute2f128_ps::<0x31>(s3, s7),
+    ]
+}
+
+/// `vertex`'s pending weights `w = kd_pi · ratio` (`Spectrum * f32`) of the lanes in `pend`:
+/// `β *= w` there; returns the lanes whose `w` is black.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn pending_weights(
+    beta: &mut [[f32; W]; 3],
+    kd_pi: &[[f32; W]; 3],
+    ratio: &[f32; W],
+    pend: u32,
+) -> u32 {
+    let zero = _mm256_setzero_ps();
+    let r = ld(ratio);
+    let pm = lane_mask(pend);
+    let mut black = pm;
+    for c in 0..3 {
+        let w = _mm256_mul_ps(ld(&kd_pi[c]), r);
+        black = _mm256_and_ps(black, _mm256_cmp_ps::<_CMP_EQ_OQ>(w, zero));
+        let b = ld(&beta[c]);
+        st(&mut beta[c], _mm256_blendv_ps(b, _mm256_mul_ps(b, w), pm));
+    }
+    bits(black)
+}
+
+/// The hit triangles' data (rows `prim`), barycentrics `b0 = 1 − b1 − b2`, uvs
+/// `uv0·b0 + uv1·b1 + uv2·b2` and sides `(−d)·ng > 0` of [`W`] vertices (as `vertex`), and the
+/// kernel's inputs except the direction samples.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn vertices(
+    rows: &[Row],
+    prim: &[u32; W],
+    hits: &PacketHits,
+    d: &[[f32; W]; 3],
+    any_normals: bool,
+    inp: &mut ScatterIn,
+) -> VertexLanes {
+    assert!(prim.iter().all(|&p| (p as usize) < rows.len()), "triangle index out of range");
+    let base = rows.as_ptr().cast::<f32>();
+    // The first 16 floats of the eight rows, transposed: `head[k]` = field k per lane.
+    let head: [__m256; 16] = {
+        // SAFETY: every row index is < rows.len() (asserted above); a row holds 32 floats.
+        let half = |h: usize| -> [__m256; 8] {
+            std::array::from_fn(|l| unsafe { _mm256_loadu_ps(base.add(32 * prim[l] as usize + 8 * h)) })
+        };
+        let (a, b) = (transpose8(half(0)), transpose8(half(1)));
+        std::array::from_fn(|k| if k < 8 { a[k] } else { b[k - 8] })
+    };
+    let field = |k: usize| head[k];
+    let ng = [field(ROW_NG), field(ROW_NG + 1), field(ROW_NG + 2)];
+    let (b1, b2) = (ld(&hits.b1), ld(&hits.b2));
+    let b0 = _mm256_sub_ps(_mm256_sub_ps(_mm256_set1_ps(1.0), b1), b2);
+    let interp = |k: usize| {
+        let a = _mm256_add_ps(_mm256_mul_ps(field(k), b0), _mm256_mul_ps(field(k + 2), b1));
+        _mm256_add_ps(a, _mm256_mul_ps(field(k + 4), b2))
+    };
+    let (u, v) = (interp(ROW_UV), interp(ROW_UV + 1));
+    let neg = |x| _mm256_xor_ps(x, _mm256_set1_ps(-0.0));
+    let dot = _mm256_add_ps(
+        _mm256_add_ps(_mm256_mul_ps(neg(ld(&d[0])), ng[0]), _mm256_mul_ps(neg(ld(&d[1])), ng[1])),
+        _mm256_mul_ps(neg(ld(&d[2])), ng[2]),
+    );
+    let front = bits(_mm256_cmp_ps::<_CMP_GT_OQ>(dot, _mm256_setzero_ps()));
+    inp.t = hits.t;
+    for (c, &n) in ng.iter().enumerate() {
+        st(&mut inp.ng[c], n);
+        st(&mut inp.ng_off[c], field(ROW_NG_OFF + c));
+    }
+    if any_normals {
+        // SAFETY: 8 u32, unaligned load.
+        let idx = _mm256_slli_epi32::<5>(unsafe { _mm256_loadu_si256(prim.as_ptr().cast()) });
+        // SAFETY: every lane's row index is < rows.len() (asserted above) and k < 32, so
+        // each gathered float lies inside `rows`.
+        let gather = |k: usize| unsafe { _mm256_i32gather_ps::<4>(base.add(k), idx) };
+        for k in 0..3 {
+            for c in 0..3 {
+                st(&mut inp.n[k][c], gather(ROW_N + 3 * k + c));
+            }
+        }
+        st_mask(&mut inp.has_n, gather(ROW_HAS_N));
+    }
+    let flags = _mm256_castps_si256(field(ROW_FLAGS));
+    let flag = |f: u32| {
+        let f = _mm256_set1_epi32(f as i32);
+        _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(flags, f), f))
+    };
+    st_mask(&mut inp.two_sided, flag(FLAG_TWO_SIDED));
+    st(&mut inp.b[0], b0);
+    st(&mut inp.b[1], b1);
+    st(&mut inp.b[2], b2);
+    let mut out =
+        VertexLanes { uv: [[0.0; W]; 2], kd_pi: [[0.0; W]; 3], front, bitmap: bits(flag(FLAG_BITMAP)) };
+    st(&mut out.uv[0], u);
+    st(&mut out.uv[1], v);
+    for c in 0..3 {
+        st(&mut out.kd_pi[c], field(ROW_KD + c));
+    }
+    out
+}
+
+/// The texel index `3·(y·w + x)` and the rounded units `round(β_c · factor)` of the
+/// deposits of [`W`] vertices of triangles `prim` at `uv` (as [`super::path::deposit`]: the f32
+/// products `u·w`, the truncation clamped to the map, the f64 products, ties away from
+/// zero, truncation). `small` = the lanes whose three rounded values are below 2³¹ in
+/// magnitude (so finite, and the conversion to integers here is exact: it is up to 2⁵¹);
+/// the others are left to `deposit`.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn deposit_values(
+    rows: &[Row],
+    factor: &[f64],
+    prim: &[u32; W],
+    uv: &[[f32; W]; 2],
+    beta: &[[f32; W]; 3],
+) -> DepositLanes {
+    // the last 8 floats of the eight rows, transposed (loads and shuffles: cheaper than
+    // gathers, see `vertices`)
+    let tail = transpose8(std::array::from_fn(|l| {
+        let r = &rows[prim[l] as usize].0;
+        // SAFETY: 8 floats of a 32-float row, unaligned load.
+        unsafe { _mm256_loadu_ps(r.as_ptr().add(24)) }
+    }));
+    let field = |k: usize| tail[k - 24];
+    let (w, h) = (field(ROW_SIZE), field(ROW_SIZE + 1));
+    let zero = _mm256_setzero_ps();
+    let one = _mm256_set1_ps(1.0);
+    // `(u·w) as i64` clamped to [0, w − 1]: a NaN product gives 0 (max picks its second
+    // operand), larger values w − 1, negative ones 0.
+    let texel = |u: __m256, n: __m256| {
+        let x = _mm256_min_ps(_mm256_max_ps(_mm256_mul_ps(u, n), zero), _mm256_sub_ps(n, one));
+        _mm256_cvttps_epi32(x)
+    };
+    let (x, y) = (texel(ld(&uv[0]), w), texel(ld(&uv[1]), h));
+    let wi = _mm256_cvttps_epi32(w);
+    let index = _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(y, wi), x), _mm256_set1_epi32(3));
+    let mut out = DepositLanes { index: [0; W], value: [[0; W]; 3], small: u32::MAX, shape: [0; W] };
+    // SAFETY: 8 i32, unaligned store.
+    unsafe { _mm256_storeu_si256(out.shape.as_mut_ptr().cast(), _mm256_castps_si256(field(ROW_SHAPE))) };
+    let limit32 = _mm256_set1_pd(2_147_483_648.0); // 2³¹
+    // SAFETY: 8 i32, unaligned store.
+    unsafe { _mm256_storeu_si256(out.index.as_mut_ptr().cast(), index) };
+    let magic = _mm256_set1_pd(6_755_399_441_055_744.0); // 1.5·2⁵²
+    let sign = _mm256_set1_pd(-0.0);
+    let half = _mm256_set1_pd(0.5);
+    for half_lanes in 0..2 {
+        let f = |l: usize| factor[prim[4 * half_lanes + l] as usize];
+        let f = _mm256_setr_pd(f(0), f(1), f(2), f(3));
+        for (c, beta_c) in beta.iter().enumerate() {
+            // SAFETY: 4 floats of an 8-float array.
+            let b = unsafe { _mm_loadu_ps(beta_c.as_ptr().add(4 * half_lanes)) };
+            let q = _mm256_mul_pd(_mm256_cvtps_pd(b), f);
+            let r = _mm256_add_pd(q, _mm256_or_pd(half, _mm256_and_pd(q, sign)));
+            let fits = _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, r), limit32);
+            let big = (!_mm256_movemask_pd(fits) & 0xf) as u32;
+            out.small &= !(big << (4 * half_lanes));
+            let t = _mm256_round_pd::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(r);
+            let v =
+                _mm256_sub_epi64(_mm256_castpd_si256(_mm256_add_pd(t, magic)), _mm256_castpd_si256(magic));
+            // SAFETY: 4 i64 of an 8-i64 array.
+            unsafe { _mm256_storeu_si256(out.value[c].as_mut_ptr().add(4 * half_lanes).cast(), v) };
+        }
+    }
+    out.small &= (1 << W) - 1;
+    out
+}
+
+/// Scatters the lanes in `alive` ([`scatter_lanes`]; `normals` = some triangle of
+/// the scene has corner normals) and moves their rays to the sampled directions; returns
+/// the lanes whose sample is valid and writes their `ratio`.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn scatter(
+    rays: &mut RayPacket,
+    inp: &ScatterIn,
+    alive: u32,
+    ratio: &mut [f32; W],
+    normals: bool,
+) -> u32 {
+    let out = if normals { kernel::<true>(rays, inp) } else { kernel::<false>(rays, inp) };
+    // SAFETY: 8 u32, unaligned load.
+    let valid = unsafe { _mm256_loadu_ps(out.valid.as_ptr().cast()) };
+    let am = _mm256_and_ps(lane_mask(alive), valid);
+    for c in 0..3 {
+        let o = _mm256_blendv_ps(ld(&rays.o[c]), ld(&out.o[c]), am);
+        st(&mut rays.o[c], o);
+        let d = _mm256_blendv_ps(ld(&rays.d[c]), ld(&out.d[c]), am);
+        st(&mut rays.d[c], d);
+    }
+    *ratio = out.ratio;
+    bits(am)
+}
+
+/// [`scatter_lanes`] compiled with AVX2, kept out of line (the lane loops vectorise
+/// reliably in a function of their own).
+#[target_feature(enable = "avx2")]
+#[inline(never)]
+fn kernel<const NORMALS: bool>(rays: &RayPacket, inp: &ScatterIn) -> ScatterOut {
+    scatter_lanes::<NORMALS>(rays, inp)
+}
+
+/// [`start_lanes`] compiled with AVX2, kept out of line like [`kernel`].
+#[target_feature(enable = "avx2")]
+#[inline(never)]
+pub(super) fn start_kernel(inp: &StartIn) -> StartOut {
+    start_lanes(inp)
+}

@@ -1,0 +1,139 @@
+//! The deposit queue of a worker ([`Sink`]): a deposit's texel is prefetched when it is
+//! pushed and added [`QUEUE`] deposits later, so the cache and TLB misses of the adds overlap
+//! the tracing. Integer sums: the order of the additions does not change the result.
+//!
+//! Tests (`tests.rs`): every pass goes through the queue; the engines, thread counts and batch
+//! sizes give identical sums.
+
+use super::fixed_point::{Acc, Cells, ShapeAcc};
+
+/// Deposits in flight per worker: the queue length of [`Sink`].
+pub(super) const QUEUE: usize = 32;
+
+/// A worker's accumulator behind a queue of [`QUEUE`] deposits: a deposit's texel is
+/// prefetched when it is pushed and the addition happens when it leaves the queue, about ten
+/// paths later, so the memory latency overlaps the tracing instead of stalling it.
+///
+/// The maps are kept flat by map number `2·shape + direct` (empty where a shape has none) and
+/// a queued deposit is 20 bytes (`i32` units: a deposit beyond `i32`, in practice never, is
+/// added at once), so a deposit costs few instructions besides its cache miss.
+pub(super) struct Sink {
+    /// Per map `2·shape + direct`.
+    maps: Vec<Cells>,
+    /// Per shape: the map size (`None`: no target) and the exact sum of |units| deposited.
+    shapes: Vec<Option<(usize, usize)>>,
+    totals: Vec<u128>,
+    ring: [Queued; QUEUE],
+    /// Oldest queued deposit, number queued.
+    head: usize,
+    len: usize,
+}
+
+/// A queued deposit: map number, index of the texel's red channel, units.
+#[derive(Clone, Copy, Default)]
+struct Queued {
+    map: u32,
+    index: u32,
+    value: [i32; 3],
+}
+
+impl Sink {
+    pub(super) fn new(acc: Acc) -> Sink {
+        let mut maps = Vec::with_capacity(2 * acc.len());
+        let mut shapes = Vec::with_capacity(acc.len());
+        for m in acc {
+            match m {
+                Some(m) => {
+                    maps.push(m.indirect);
+                    maps.push(m.direct);
+                    shapes.push(Some((m.width, m.height)));
+                }
+                None => {
+                    maps.push(Cells::new(0));
+                    maps.push(Cells::new(0));
+                    shapes.push(None);
+                }
+            }
+        }
+        let totals = vec![0; shapes.len()];
+        Sink { maps, shapes, totals, ring: [Queued::default(); QUEUE], head: 0, len: 0 }
+    }
+
+    /// Queues a deposit ([`Sink::push_small`]), or adds it at once when its units or index do
+    /// not fit the queue.
+    #[inline]
+    pub(super) fn push(&mut self, p: Pending) {
+        let value = p.value.map(|v| v as i32);
+        if value.iter().zip(&p.value).all(|(&a, &b)| a as i64 == b) && p.index <= u32::MAX as usize {
+            self.push_small(p.shape, p.direct, p.index as u32, value);
+        } else {
+            self.totals[p.shape] += p.value.iter().map(|v| v.unsigned_abs() as u128).sum::<u128>();
+            self.maps[2 * p.shape + p.direct as usize].add(p.index, p.value);
+        }
+    }
+
+    /// Queues a deposit whose units fit in `i32` (channel index `index` of the map of `shape`,
+    /// direct or indirect): counts it in the shape's total, prefetches its texel and adds the
+    /// deposit that leaves the queue.
+    #[inline(always)]
+    pub(super) fn push_small(&mut self, shape: usize, direct: bool, index: u32, value: [i32; 3]) {
+        self.totals[shape] += value.iter().map(|v| v.unsigned_abs() as u64).sum::<u64>() as u128;
+        let map = 2 * shape + direct as usize;
+        prefetch(&self.maps[map].fine[index as usize]);
+        let q = Queued { map: map as u32, index, value };
+        if self.len == QUEUE {
+            let old = std::mem::replace(&mut self.ring[self.head], q);
+            self.head = (self.head + 1) % QUEUE;
+            self.apply(old);
+        } else {
+            self.ring[(self.head + self.len) % QUEUE] = q;
+            self.len += 1;
+        }
+    }
+
+    #[inline]
+    fn apply(&mut self, q: Queued) {
+        self.maps[q.map as usize].add32(q.index as usize, q.value);
+    }
+
+    /// Applies the queued deposits and returns the accumulator.
+    pub(super) fn finish(mut self) -> Acc {
+        for k in 0..self.len {
+            let q = self.ring[(self.head + k) % QUEUE];
+            self.apply(q);
+        }
+        let mut maps = self.maps.into_iter();
+        self.shapes
+            .iter()
+            .zip(self.totals)
+            .map(|(size, total)| {
+                let (indirect, direct) = (maps.next().expect("two maps"), maps.next().expect("per shape"));
+                size.map(|(width, height)| ShapeAcc { width, height, direct, indirect, total })
+            })
+            .collect()
+    }
+}
+
+/// A deposit: texel, map and integer value.
+#[derive(Clone, Copy)]
+pub(super) struct Pending {
+    pub(super) shape: usize,
+    /// Index of the texel's red channel in the flat map.
+    pub(super) index: usize,
+    pub(super) direct: bool,
+    pub(super) value: [i64; 3],
+}
+
+/// Hint to bring the cache line of `v` close to the core (no effect on results).
+#[inline(always)]
+pub(super) fn prefetch<T>(v: &T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // SAFETY: SSE is part of the x86-64 baseline, so the instruction exists; a prefetch
+        // never faults and has no architectural effect, whatever the address.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(v as *const T as *const i8) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = v;
+}
