@@ -1,12 +1,18 @@
 //! Ray–triangle acceleration: closest-hit and any-hit queries over a triangle soup.
 //!
+//! * [`Accel`]: **the one intersection API** every caller uses (the path tracer, the light
+//!   tracer, de-lighting's projection and visibility, through [`crate::scene::Scene`]):
+//!   `intersect` (closest hit), `occluded` (any hit, no barycentrics) and `intersect8` (a
+//!   [`packet::RayPacket`] of eight rays). An enum over the implementations below, chosen once
+//!   when the scene is built.
 //! * [`triangle`]: the watertight ray–triangle test (Woop et al. 2013) every structure uses, and
 //!   robust ray spawning ([`offset_ray_origin`], [`spawn_ray`], [`spawn_ray_to`]).
-//! * [`Bvh`]: the acceleration structure the engine uses (binned SAH BVH, see [`bvh`]).
-//! * [`TinyAccel`]: every triangle tested eight at a time (SIMD), for scenes of at most
-//!   [`tiny::TINY_MAX`] triangles (see [`tiny`]).
-//! * [`packet::PacketAccel`]: eight rays at once (one per SIMD lane) against a tiny soup, for
-//!   callers with independent rays at hand (the light tracer's wavefront); same hits.
+//! * [`Bvh`]: the 8-wide BVH for every scene size (binned SAH, leaves of eight triangles tested
+//!   at once, AVX2 traversal; see [`bvh`]).
+//! * [`TinyAccel`] + [`packet::PacketAccel`]: scenes of at most [`tiny::TINY_MAX`] triangles,
+//!   every triangle tested eight at a time, or eight rays at once (one per SIMD lane) — kept
+//!   because it is measurably faster than the BVH there (`examples/accel_compare.rs`,
+//!   `docs/decisions/tiny-accel.md`); same hits.
 //! * [`scenes`]: deterministic meshes and soups for tests and benchmarks.
 //! * [`BruteForce`] tests every triangle; it is the reference the BVH is tested against.
 
@@ -23,6 +29,80 @@ pub use triangle::{TriRay, intersect_triangle, offset_ray_origin, spawn_ray, spa
 
 use crate::geometry::Ray;
 use crate::math::Vec3;
+use packet::{PacketAccel, PacketHits, RayPacket};
+
+/// The intersection API over the implementations (see the module docs).
+#[derive(Clone, Debug)]
+pub enum Accel {
+    /// At most [`tiny::TINY_MAX`] triangles: all tested, eight at a time (single rays) or eight
+    /// rays at once (packets).
+    Tiny {
+        /// Single rays.
+        single: TinyAccel,
+        /// Packets.
+        packet: PacketAccel,
+    },
+    /// Any size: the 8-wide BVH.
+    Bvh(Bvh),
+}
+
+impl Accel {
+    /// The structure for `tris`: [`Accel::Tiny`] up to [`tiny::TINY_MAX`] triangles, else the
+    /// [`Bvh`].
+    pub fn new(tris: Vec<[Vec3; 3]>) -> Accel {
+        if tris.len() <= tiny::TINY_MAX {
+            Accel::Tiny { single: TinyAccel::new(tris.clone()), packet: PacketAccel::new(tris) }
+        } else {
+            Accel::Bvh(Bvh::new(tris))
+        }
+    }
+
+    /// The BVH whatever the size (for tests and comparisons).
+    pub fn bvh(tris: Vec<[Vec3; 3]>) -> Accel {
+        Accel::Bvh(Bvh::new(tris))
+    }
+
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        match self {
+            Accel::Tiny { single, .. } => single.len(),
+            Accel::Bvh(b) => b.len(),
+        }
+    }
+
+    /// Whether there are no triangles.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Closest hit with `0 < t < ray.tmax`.
+    #[inline]
+    pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        match self {
+            Accel::Tiny { single, .. } => single.intersect(ray),
+            Accel::Bvh(b) => b.intersect(ray),
+        }
+    }
+
+    /// Whether any triangle is hit with `0 < t < ray.tmax`.
+    #[inline]
+    pub fn occluded(&self, ray: &Ray) -> bool {
+        match self {
+            Accel::Tiny { single, .. } => single.occluded(ray),
+            Accel::Bvh(b) => b.occluded(ray),
+        }
+    }
+
+    /// Closest hits of the eight rays of a packet (lanes with `tmax ≤ 0` are inactive and
+    /// miss); the same hits as [`Accel::intersect`] lane by lane.
+    #[inline]
+    pub fn intersect8(&self, rays: &RayPacket) -> PacketHits {
+        match self {
+            Accel::Tiny { packet, .. } => packet.intersect_lanes(rays),
+            Accel::Bvh(b) => b.intersect8(rays),
+        }
+    }
+}
 
 /// A ray–triangle hit.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -30,6 +30,9 @@
 //! through shared corners, inactive lanes, ties); `examples/tiny_rays.rs` times it against
 //! [`super::TinyAccel`].
 
+// The SIMD fast paths exist on x86-64 only; elsewhere the scalar paths run (same results).
+#![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_imports, unused_variables))]
+
 use super::{BruteForce, Hit};
 use crate::geometry::Ray;
 use crate::math::Vec3;
@@ -97,6 +100,8 @@ pub struct PacketAccel {
     groups: Vec<Group>,
     /// The scalar test for lanes with a zero edge function and CPUs without AVX2.
     brute: BruteForce,
+    /// AVX2 kernels ([`crate::simd::isa`], read when built).
+    avx2: bool,
 }
 
 impl PacketAccel {
@@ -126,7 +131,7 @@ impl PacketAccel {
                 .collect();
             groups.push(Group { verts, tris });
         }
-        PacketAccel { len: tris.len(), groups, brute: BruteForce::new(tris) }
+        PacketAccel { len: tris.len(), groups, brute: BruteForce::new(tris), avx2: crate::simd::isa().avx2() }
     }
 
     /// Number of triangles.
@@ -149,8 +154,8 @@ impl PacketAccel {
     #[inline]
     pub fn intersect_lanes(&self, rays: &RayPacket) -> PacketHits {
         #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked just above).
+        if self.avx2 {
+            // SAFETY: the CPU supports AVX2 (detected when built).
             return unsafe { self.intersect_avx2(rays) };
         }
         let mut h = PacketHits::NONE;

@@ -49,6 +49,9 @@
 //! Tests: unit tests below; `crates/opal/tests/accel.rs` (identical hits to brute force on random
 //! soups and the Cornell box, watertightness on closed meshes).
 
+// The SIMD fast paths exist on x86-64 only; elsewhere the scalar paths run (same results).
+#![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_imports, unused_variables))]
+
 use super::Hit;
 pub use super::group::LANES;
 #[cfg(target_arch = "x86_64")]

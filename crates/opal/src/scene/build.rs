@@ -3,8 +3,7 @@
 //! structure and the light sampler.
 
 use super::desc::{BsdfDesc, EmitterDesc, IntegratorDesc, SceneDesc, TextureDesc};
-use crate::accel::packet::PacketAccel;
-use crate::accel::{Bvh, Hit, TinyAccel};
+use crate::accel::{Accel, Hit};
 use crate::bsdf::{Bxdfs, Lambert};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -12,9 +11,6 @@ use crate::geometry::{Ray, TriangleMesh};
 use crate::light::{Light, LightSampler, TriangleLight};
 use crate::math::{Frame, Vec2, Vec3};
 use crate::spectrum::Spectrum;
-
-/// Acceleration structure used by scenes.
-pub type Accel = Bvh;
 
 /// One shape of a built scene.
 #[derive(Clone, Debug)]
@@ -64,10 +60,6 @@ pub struct Scene {
     /// Warnings collected while building (dropped triangles...).
     pub warnings: Vec<String>,
     accel: Accel,
-    /// Flat SIMD structure used instead of `accel` for tiny scenes (identical hits).
-    tiny: Option<TinyAccel>,
-    /// Eight rays at once, for tiny scenes (identical hits; see [`Scene::packet`]).
-    packet: Option<PacketAccel>,
     prim_shape: Vec<u32>,
     prim_light: Vec<u32>,
     light_sampler: Option<LightSampler>,
@@ -182,8 +174,6 @@ impl Scene {
             cameras.push(Camera::new(s));
         }
         let light_sampler = LightSampler::new(&lights);
-        let tiny = (tris.len() <= crate::accel::tiny::TINY_MAX).then(|| TinyAccel::new(tris.clone()));
-        let packet = tiny.is_some().then(|| PacketAccel::new(tris.clone()));
         let accel = Accel::new(tris);
         Ok(Scene {
             shapes,
@@ -192,8 +182,6 @@ impl Scene {
             integrator: desc.integrator.clone().unwrap_or_default(),
             warnings: Vec::new(),
             accel,
-            tiny,
-            packet,
             prim_shape,
             prim_light,
             light_sampler,
@@ -215,25 +203,18 @@ impl Scene {
     /// Closest hit, without the local geometry (see [`Scene::interaction`]).
     #[inline]
     pub fn intersect_hit(&self, ray: &Ray) -> Option<Hit> {
-        match &self.tiny {
-            Some(t) => t.intersect(ray),
-            None => self.accel.intersect(ray),
-        }
+        self.accel.intersect(ray)
     }
 
-    /// Closest hits of eight rays at once (triangle indices as in [`Scene::intersect_hit`]), for
-    /// scenes of at most [`crate::accel::tiny::TINY_MAX`] triangles; `None` for larger scenes.
-    pub fn packet(&self) -> Option<&PacketAccel> {
-        self.packet.as_ref()
+    /// The scene's acceleration structure (triangle indices as in [`Scene::intersect_hit`]).
+    pub fn accel(&self) -> &Accel {
+        &self.accel
     }
 
     /// Whether anything blocks the ray before `ray.tmax`.
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
-        match &self.tiny {
-            Some(t) => t.occluded(ray),
-            None => self.accel.occluded(ray),
-        }
+        self.accel.occluded(ray)
     }
 
     /// Local geometry of a hit.

@@ -84,6 +84,9 @@
 //! per lane, one path at a time); the `i32` cells with spill against plain `i64` sums (random
 //! deposits up to 2⁴⁰ units); `direct: false` leaves the indirect map bitwise unchanged.
 
+// The SIMD fast paths exist on x86-64 only; elsewhere the scalar paths run (same results).
+#![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_imports, unused_variables))]
+
 #[cfg(target_arch = "x86_64")]
 mod avx;
 mod fixed_point;
@@ -222,7 +225,7 @@ pub fn trace(
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Engine {
     /// The wavefront when every material is Lambertian (rays traced as
-    /// [`RayPacket`](crate::accel::packet::RayPacket)s in scenes of up to `TINY_MAX` triangles),
+    /// [`RayPacket`](crate::accel::packet::RayPacket)s through [`crate::accel::Accel::intersect8`]),
     /// else one path at a time.
     Auto,
     /// The wavefront with one `Scene::intersect_hit` per lane.
@@ -261,7 +264,7 @@ fn trace_fixed(
         LambertTable::new(scene, &prims)
     };
     // Small scenes: the wavefront's eight rays are traced together, one per SIMD lane.
-    let packet = if wavefront.is_some() && engine == Engine::Auto { scene.packet() } else { None };
+    let accel = (engine == Engine::Auto).then(|| scene.accel());
     let results: Vec<(Acc, u64)> = (0..workers)
         .into_par_iter()
         .map(|_| {
@@ -275,7 +278,7 @@ fn trace_fixed(
                 let paths = b * batch..((b + 1) * batch).min(s.paths);
                 let mut ctx = PathCtx { scene, sampler, prims: &prims, sink: &mut sink, s, bad: &mut bad };
                 if let Some(tab) = &wavefront {
-                    Wavefront::run(&mut ctx, tab, &stream, paths, packet);
+                    Wavefront::run(&mut ctx, tab, &stream, paths, accel);
                 } else {
                     for i in paths {
                         trace_path(&mut ctx, stream.rng(i));

@@ -5,8 +5,11 @@
 
 #[cfg(target_arch = "x86_64")]
 use super::avx;
+#[cfg(target_arch = "x86_64")]
 use super::path::start_path;
-use super::wavefront::{W, cosine_hemisphere_lanes, each3, lanes_of, mask, offset_lanes};
+use super::wavefront::{W, cosine_hemisphere_lanes, each3, offset_lanes};
+#[cfg(target_arch = "x86_64")]
+use super::wavefront::{lanes_of, mask};
 use crate::math::{Frame, Vec3};
 use crate::sampling::{Rng, RngStream};
 use crate::scene::Scene;

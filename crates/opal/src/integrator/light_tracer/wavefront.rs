@@ -9,10 +9,19 @@
 
 #[cfg(target_arch = "x86_64")]
 use super::avx;
-use super::path::{PathCtx, deposit, survival, trace_path};
-use super::prims::{Mat, Prim, prefetch_texture};
-use super::starts::{LightRow, StartBlock, light_rows, starts};
-use crate::accel::packet::{PacketAccel, PacketHits, RayPacket};
+#[cfg(target_arch = "x86_64")]
+use super::path::deposit;
+use super::path::{PathCtx, survival, trace_path};
+#[cfg(target_arch = "x86_64")]
+use super::prims::prefetch_texture;
+use super::prims::{Mat, Prim};
+#[cfg(target_arch = "x86_64")]
+use super::starts::starts;
+use super::starts::{LightRow, StartBlock, light_rows};
+use crate::accel::Accel;
+#[cfg(target_arch = "x86_64")]
+use crate::accel::packet::PacketHits;
+use crate::accel::packet::RayPacket;
 use crate::math::{INV_PI, Vec2};
 use crate::sampling::{Rng, RngStream};
 use crate::scene::Scene;
@@ -283,6 +292,7 @@ impl Lanes<'_> {
     /// `vertex`'s pending weights `kd_pi · ratio` (bitmap albedos looked up first) and, from
     /// `rr_depth` on, the roulette of the lanes in `m`; they are no longer pending. Returns the
     /// lanes whose path ends.
+    #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     fn settle(&mut self, m: u32, rr_depth: i32) -> u32 {
         for l in lanes_of(m & self.bitmap) {
@@ -387,12 +397,12 @@ impl Wavefront {
         tab: &LambertTable<'a>,
         stream: &RngStream,
         paths: std::ops::Range<u64>,
-        packet: Option<&PacketAccel>,
+        accel: Option<&Accel>,
     ) {
         #[cfg(target_arch = "x86_64")]
         if Wavefront::available() {
             // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { Wavefront::run_avx2(ctx, tab, stream, paths, packet) };
+            return unsafe { Wavefront::run_avx2(ctx, tab, stream, paths, accel) };
         }
         for i in paths {
             trace_path(ctx, stream.rng(i));
@@ -406,7 +416,7 @@ impl Wavefront {
         tab: &LambertTable<'a>,
         stream: &RngStream,
         paths: std::ops::Range<u64>,
-        packet: Option<&PacketAccel>,
+        accel: Option<&Accel>,
     ) {
         let (scene, sampler, s) = (ctx.scene, ctx.sampler, ctx.s);
         let mut ln = Lanes {
@@ -456,8 +466,10 @@ impl Wavefront {
         let rows = &tab.rows[..];
         let mut inp = ScatterIn::default();
         while ln.active != 0 {
-            let hits = match packet {
-                Some(pa) => pa.intersect_avx2(&ln.rays),
+            let hits = match accel {
+                // (inlined into this AVX2 function)
+                Some(Accel::Tiny { packet, .. }) => packet.intersect_avx2(&ln.rays),
+                Some(a) => a.intersect8(&ln.rays),
                 None => {
                     let mut h = PacketHits::NONE;
                     for l in lanes_of(ln.active) {
