@@ -1,8 +1,9 @@
 //! Geometry: rays and triangle meshes (the only primitive the engine intersects; Mitsuba's
-//! analytic shapes are tessellated at load time, see docs/scene-format.md).
+//! analytic shapes are tessellated at load time by [`shapes`], see docs/scene-format.md).
 
 pub mod obj;
 pub mod ply;
+pub mod shapes;
 
 use crate::math::{Vec2, Vec3};
 
