@@ -39,7 +39,7 @@ for label in ["sphere1m", "cbox"]:
     o, e = res[("opal", label)], res[("embree", label)]
     r = lambda k: float(o[k]) / float(e[k])
     print(f"{label}: {o['tris']} triangles, {o['rays']} rays, {o['threads']} threads, medians of {o['repeats']}")
-    print(f"  build            opal {float(o['build_ms']):9.1f} ms   embree {float(e['build_ms']):9.1f} ms")
+    print(f"  build            opal {float(o['build_ms']):9.3f} ms   embree {float(e['build_ms']):9.3f} ms")
     print(f"  closest hit      opal {float(o['mrays_s']):9.3f} M/s  embree {float(e['mrays_s']):9.3f} M/s  "
           f"opal/embree {r('mrays_s'):.2f}x   (wall)")
     print(f"  per CPU-second   opal {float(o['cpu_mrays_s']):9.3f} M    embree {float(e['cpu_mrays_s']):9.3f} M    "

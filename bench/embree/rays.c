@@ -197,7 +197,7 @@ int main(int argc, char **argv) {
   }
   double mn = rate[0], mx = rate[0];
   for (int r = 1; r < repeats; r++) { mn = fmin(mn, rate[r]); mx = fmax(mx, rate[r]); }
-  printf("RESULT embree %s tris=%u rays=%u build_ms=%.1f mrays_s=%.3f min=%.3f max=%.3f cpu_mrays_s=%.3f hits=%zu tsum=%.6f threads=%d repeats=%d\n",
+  printf("RESULT embree %s tris=%u rays=%u build_ms=%.3f mrays_s=%.3f min=%.3f max=%.3f cpu_mrays_s=%.3f hits=%zu tsum=%.6f threads=%d repeats=%d\n",
          argv[2], g_ntris, g_nrays, 1e3 * median(bt, builds), median(rate, repeats), mn, mx, median(cpu_rate, repeats), first.hits, first.tsum,
          threads, repeats);
   rtcReleaseScene(g_scene);

@@ -90,7 +90,7 @@ fn run(label: &str, tris: Vec<[Vec3; 3]>, rays: &[Ray], out: &Path, threads: usi
     }
     let (mn, mx) = rates.iter().fold((f64::INFINITY, 0.0f64), |a, &r| (a.0.min(r), a.1.max(r)));
     println!(
-        "RESULT opal {label} tris={ntris} rays={} build_ms={:.1} mrays_s={:.3} min={mn:.3} max={mx:.3} cpu_mrays_s={:.3} \
+        "RESULT opal {label} tris={ntris} rays={} build_ms={:.3} mrays_s={:.3} min={mn:.3} max={mx:.3} cpu_mrays_s={:.3} \
          hits={hits} tsum={tsum:.6} threads={threads} repeats={repeats}",
         rays.len(),
         median(builds) * 1e3,
