@@ -1,13 +1,20 @@
 #!/usr/bin/env bash
-# Times the same render with Opal and Mitsuba 3 in one run and prints samples/s and the ratio:
-# Cornell box (tests/data/cbox, view 0) at 512x512, 64 spp, max depth 8, box filter.
-# Each renderer: one warm-up render, then REPEATS timed renders; the median is reported.
-# Mitsuba comes from PyPI (`mitsuba` in bench/.venv). The llvm_ad_rgb variant needs a libLLVM
-# >= 16 (Debian: libllvm19); without it only scalar_rgb runs.
-# Usage: bash bench/render_vs_mitsuba.sh [REPEATS]
+# Times the same render with Opal and Mitsuba 3 in one run and prints samples/s and the ratio.
+# Scenes (second argument):
+#   cbox  Cornell box (tests/data/cbox, view 0) at 512x512, 64 spp, max depth 8 (default)
+#   scan  scanned-object room: the Cornell box with the tall box replaced by an 81 920-triangle
+#         displaced, textured icosphere (written by the opal example `make_scan_room` into a
+#         temp dir), view 0 at 256x256, 64 spp, max depth 16
+#   both  cbox then scan
+# Box filter. Each renderer: one warm-up render, then REPEATS timed renders; the median is
+# reported. Mitsuba comes from PyPI (`mitsuba` in bench/.venv). The llvm_ad_rgb variant needs a
+# libLLVM >= 16 (Debian: libllvm19); without it only scalar_rgb runs.
+# Usage: bash bench/render_vs_mitsuba.sh [REPEATS=3] [cbox|scan|both]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 REPEATS="${1:-3}"
+SCENES="${2:-cbox}"
+case "$SCENES" in cbox|scan) ;; both) SCENES="cbox scan" ;; *) echo "scene must be cbox, scan or both" >&2; exit 2 ;; esac
 VENV=bench/.venv
 if [ ! -x "$VENV/bin/python" ]; then
   python3 -m venv "$VENV"
@@ -22,46 +29,68 @@ if [ "$PROFILE" = release ]; then cargo build --release -q -p opal-cli; OPAL=tar
 else cargo build -q -p opal-cli; OPAL=target/debug/opal; fi
 WORK=$(mktemp -d)
 trap 'rm -rf "$WORK"' EXIT
-cp -r crates/opal/tests/data/cbox "$WORK/cbox"
-# 512x512 film for every sensor
-sed -i 's/name="width" value="256"/name="width" value="512"/; s/name="height" value="256"/name="height" value="512"/' "$WORK/cbox/scene.xml"
-"$OPAL" render "$WORK/cbox/scene.xml" -o "$WORK/warm.exr" --spp 64 --max-depth 8 --quiet >/dev/null 2>&1
-opal_times=()
-for i in $(seq "$REPEATS"); do
-  t=$("$OPAL" render "$WORK/cbox/scene.xml" -o "$WORK/o.exr" --spp 64 --max-depth 8 --seed "$i" --json --quiet \
-      | "$VENV/bin/python" -c 'import json,sys; print(json.load(sys.stdin)["seconds"])')
-  opal_times+=("$t")
-done
-"$VENV/bin/python" - "$WORK/cbox/scene.xml" "$REPEATS" "${opal_times[@]}" <<'PY'
-import statistics, subprocess, sys, json, time
-scene, repeats, opal = sys.argv[1], int(sys.argv[2]), [float(x) for x in sys.argv[3:]]
-samples = 512 * 512 * 64
-child = r'''
+
+# bench_scene LABEL SCENE_XML WIDTH HEIGHT SPP MAX_DEPTH
+bench_scene() {
+  local label=$1 scene=$2 w=$3 h=$4 spp=$5 depth=$6
+  echo "== $label: load average before $(cut -d' ' -f1-3 /proc/loadavg)"
+  "$OPAL" render "$scene" -o "$WORK/warm.exr" --spp "$spp" --max-depth "$depth" --quiet >/dev/null 2>&1
+  local opal_times=() t i
+  for i in $(seq "$REPEATS"); do
+    t=$("$OPAL" render "$scene" -o "$WORK/o.exr" --spp "$spp" --max-depth "$depth" --seed "$i" --json --quiet \
+        | "$VENV/bin/python" -c 'import json,sys; print(json.load(sys.stdin)["seconds"])')
+    opal_times+=("$t")
+  done
+  "$VENV/bin/python" - "$label" "$scene" "$w" "$h" "$spp" "$depth" "$REPEATS" "${opal_times[@]}" <<'PY'
+import statistics, subprocess, sys, json
+label, scene = sys.argv[1], sys.argv[2]
+w, h, spp, depth, repeats = (int(x) for x in sys.argv[3:8])
+opal = [float(x) for x in sys.argv[8:]]
+samples = w * h * spp
+child = r"""
 import sys, time, statistics, json
 import mitsuba as mi
 mi.set_variant(sys.argv[1])
 import drjit as dr, numpy as np
 scene = mi.load_file(sys.argv[2])
-integ = mi.load_dict({"type": "path", "max_depth": 8})
+spp = int(sys.argv[4])
+integ = mi.load_dict({"type": "path", "max_depth": int(sys.argv[5])})
 def one(seed):
     t0 = time.perf_counter()
-    img = mi.render(scene, spp=64, seed=seed, integrator=integ, sensor=0)
+    img = mi.render(scene, spp=spp, seed=seed, integrator=integ, sensor=0)
     np.array(img); dr.sync_thread()
     return time.perf_counter() - t0
 one(0)
 print(json.dumps([one(s + 1) for s in range(int(sys.argv[3]))]))
-'''
+"""
 res = {"opal": statistics.median(opal)}
 for v in ["llvm_ad_rgb", "scalar_rgb"]:
+    out = None
     try:
-        out = subprocess.run([sys.executable, "-c", child, v, scene, str(repeats)], capture_output=True, text=True, timeout=3600)
+        out = subprocess.run([sys.executable, "-c", child, v, scene, str(repeats), str(spp), str(depth)],
+                             capture_output=True, text=True, timeout=3600)
         res["mitsuba_" + v] = statistics.median(json.loads(out.stdout.strip().splitlines()[-1]))
     except Exception as e:
-        print(f"mitsuba {v}: failed ({e}; {out.stderr[-300:] if 'out' in dir() else ''})", file=sys.stderr)
-print(f"Cornell box 512x512, 64 spp, max depth 8, medians of {repeats} runs")
+        print(f"mitsuba {v}: failed ({e}; {out.stderr[-300:] if out else ''})", file=sys.stderr)
+print(f"{label} {w}x{h}, {spp} spp, max depth {depth}, medians of {repeats} runs")
 for k, t in res.items():
     print(f"  {k:22s} {t:8.2f} s  {samples / t / 1e6:7.2f} M samples/s")
 for k, t in res.items():
     if k != "opal":
         print(f"  ratio opal / {k}: {t / res['opal']:.2f}x")
 PY
+  echo "== $label: load average after $(cut -d' ' -f1-3 /proc/loadavg)"
+}
+
+for sc in $SCENES; do
+  case "$sc" in
+    cbox)
+      cp -r crates/opal/tests/data/cbox "$WORK/cbox"
+      # 512x512 film for every sensor
+      sed -i 's/name="width" value="256"/name="width" value="512"/; s/name="height" value="256"/name="height" value="512"/' "$WORK/cbox/scene.xml"
+      bench_scene "Cornell box" "$WORK/cbox/scene.xml" 512 512 64 8 ;;
+    scan)
+      cargo run --release -q -p opal --example make_scan_room -- "$WORK/scan" >/dev/null
+      bench_scene "Scanned-object room" "$WORK/scan/scene.xml" 256 256 64 16 ;;
+  esac
+done
