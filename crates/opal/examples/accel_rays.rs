@@ -28,7 +28,7 @@ mod compare;
 
 use compare::{big_mesh, cpu_seconds, incoherent_rays, trace};
 use opal::accel::scenes::cornell_box;
-use opal::accel::{Bvh, Hit};
+use opal::accel::{Accel, Hit};
 use opal::geometry::Ray;
 use opal::math::Vec3;
 use std::io::Write;
@@ -38,8 +38,9 @@ use std::time::Instant;
 /// The acceleration structure under test: builds from a triangle soup and returns its
 /// closest-hit query (`prim` = index in `tris`).
 fn opal_accel(tris: Vec<[Vec3; 3]>) -> impl Fn(&Ray) -> Option<Hit> + Sync {
-    let bvh = Bvh::new(tris);
-    move |r: &Ray| bvh.intersect(r)
+    // What a scene of these triangles uses (the BVH, or the flat structure for tiny scenes).
+    let accel = Accel::new(tris);
+    move |r: &Ray| accel.intersect(r)
 }
 
 fn write_rays(path: &Path, tris: &[[Vec3; 3]], rays: &[Ray]) -> std::io::Result<()> {

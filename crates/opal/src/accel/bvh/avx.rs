@@ -6,9 +6,10 @@
 
 use super::{BOX_FAR_SCALE, Bvh, Entry, LEAF, STACK, WIDTH, order_children};
 use crate::accel::Hit;
-use crate::accel::group::{AvxRay, LANES, ShearRay, group_hit_avx};
+use crate::accel::group::{AvxRay, ShearRay, group_hit_avx};
 use crate::geometry::Ray;
 use std::arch::x86_64::*;
+use std::mem::MaybeUninit;
 
 impl Bvh {
     /// See [`Bvh::traverse`](super::Bvh): the same traversal with AVX2 box and group tests.
@@ -21,21 +22,20 @@ impl Bvh {
         let scale = _mm256_set1_ps(BOX_FAR_SCALE);
         let ar = AvxRay::new(&ShearRay::new(ray));
         let mut tmax = ray.tmax;
-        let mut best: Option<Hit> = None;
-        let mut stack = [Entry::default(); STACK];
+        // the closest hit so far: (group, lane, t, b1, b2); its triangle index is looked up at
+        // the end (one cache miss per ray rather than per candidate)
+        let mut best: Option<(usize, usize, f32, f32, f32)> = None;
+        let mut stack = [MaybeUninit::<Entry>::uninit(); STACK];
         let mut sp = 0usize;
         let mut cur = 0u32;
         loop {
             if cur & LEAF != 0 {
                 let g = (cur & !LEAF) as usize;
-                // SAFETY: leaf references are built from `groups` indices.
-                let group = unsafe { self.groups.get_unchecked(g) };
+                // SAFETY: leaf references are built from `leaves` indices.
+                let group = unsafe { &self.leaves.get_unchecked(g).tris };
                 if let Some((l, t, b1, b2)) = group_hit_avx::<ANY>(group, &ar, ray, tmax) {
                     tmax = t;
-                    best = Some(Hit { t, prim: self.prims[g * LANES + l], b1, b2 });
-                    if ANY {
-                        return best;
-                    }
+                    best = Some((g, l, t, b1, b2));
                 }
             } else {
                 // SAFETY: interior references are built from `nodes` indices.
@@ -72,12 +72,13 @@ impl Bvh {
                         if c & LEAF != 0 {
                             let g = (c & !LEAF) as usize;
                             // SAFETY: as above.
-                            let group = unsafe { self.groups.get_unchecked(g) };
+                            let group = unsafe { &self.leaves.get_unchecked(g).tris };
                             if let Some((l, t, b1, b2)) = group_hit_avx::<true>(group, &ar, ray, tmax) {
-                                return Some(Hit { t, prim: self.prims[g * LANES + l], b1, b2 });
+                                // any-hit: only whether; the triangle index is not looked up
+                                return Some(Hit { t, prim: l as u32, b1, b2 });
                             }
                         } else {
-                            stack[sp] = Entry { child: c, tnear: tn[l] };
+                            stack[sp].write(Entry { child: c, tnear: tn[l] });
                             sp += 1;
                         }
                     }
@@ -91,11 +92,13 @@ impl Bvh {
             }
             loop {
                 if sp == 0 {
-                    return best;
+                    return best.map(|(g, l, t, b1, b2)| Hit { t, prim: self.leaves[g].prim[l], b1, b2 });
                 }
                 sp -= 1;
-                if stack[sp].tnear <= tmax {
-                    cur = stack[sp].child;
+                // SAFETY: entries below `sp` were written.
+                let e = unsafe { stack[sp].assume_init() };
+                if e.tnear <= tmax {
+                    cur = e.child;
                     break;
                 }
             }

@@ -41,6 +41,7 @@ use super::packet::{PACKET, PacketHits, RayPacket};
 use crate::geometry::Ray;
 use crate::math::Vec3;
 use build::BuildNode;
+use std::mem::MaybeUninit;
 
 /// Children per node.
 pub const WIDTH: usize = 8;
@@ -56,6 +57,16 @@ const STACK: usize = (WIDTH - 1) * build::MAX_DEPTH + WIDTH;
 const LEAF: u32 = 1 << 31;
 /// An empty child slot (its box is empty: no ray enters it).
 const EMPTY: u32 = u32::MAX;
+
+/// A leaf: up to eight triangles and their input indices (`u32::MAX` in unused lanes), 320
+/// bytes; the index sits next to the corners so that reading the winner's index costs no
+/// cache miss.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+struct Leaf {
+    tris: Group,
+    prim: [u32; LANES],
+}
 
 /// 8-wide node, 256 bytes: the children's boxes `b[0 = lo, 1 = hi][axis][child]` and references.
 #[derive(Clone, Copy, Debug)]
@@ -103,15 +114,14 @@ fn collapse(node: &BuildNode, refs: &[build::PrimRef], tris: &[[Vec3; 3]], out: 
             BuildNode::Leaf { start, count, .. } => {
                 let (start, count) = (*start as usize, *count as usize);
                 debug_assert!(count <= LANES);
-                let g = out.groups.len() as u32;
+                let g = out.leaves.len() as u32;
                 let leaf: Vec<[Vec3; 3]> =
                     refs[start..start + count].iter().map(|r| tris[r.idx as usize]).collect();
-                out.groups.push(Group::new(&leaf));
-                let mut prims = [u32::MAX; LANES];
-                for (p, r) in prims.iter_mut().zip(&refs[start..start + count]) {
+                let mut prim = [u32::MAX; LANES];
+                for (p, r) in prim.iter_mut().zip(&refs[start..start + count]) {
                     *p = r.idx;
                 }
-                out.prims.extend_from_slice(&prims);
+                out.leaves.push(Leaf { tris: Group::new(&leaf), prim });
                 LEAF | g
             }
             BuildNode::Interior { .. } => collapse(k, refs, tris, out),
@@ -162,7 +172,7 @@ impl BoxRay {
 }
 
 /// A pending child on the traversal stack.
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Copy)]
 struct Entry {
     child: u32,
     tnear: f32,
@@ -175,7 +185,7 @@ fn order_children(
     mask: u32,
     tn: &[f32; WIDTH],
     child: &[u32; WIDTH],
-    stack: &mut [Entry],
+    stack: &mut [MaybeUninit<Entry>],
     sp: &mut usize,
 ) -> u32 {
     debug_assert!(mask != 0);
@@ -190,7 +200,7 @@ fn order_children(
         let second = rest.trailing_zeros() as usize;
         let (a, b) = (key(first), key(second));
         let (near, far) = if a <= b { (a, b) } else { (b, a) };
-        stack[*sp] = Entry { child: far as u32, tnear: f32::from_bits((far >> 32) as u32) };
+        stack[*sp].write(Entry { child: far as u32, tnear: f32::from_bits((far >> 32) as u32) });
         *sp += 1;
         return near as u32;
     }
@@ -210,7 +220,7 @@ fn order_children(
         h += 1;
     }
     for &k in keys[1..h].iter().rev() {
-        stack[*sp] = Entry { child: k as u32, tnear: f32::from_bits((k >> 32) as u32) };
+        stack[*sp].write(Entry { child: k as u32, tnear: f32::from_bits((k >> 32) as u32) });
         *sp += 1;
     }
     keys[0] as u32
@@ -220,10 +230,8 @@ fn order_children(
 #[derive(Clone, Debug)]
 pub struct Bvh {
     nodes: Vec<Node8>,
-    /// Leaves: eight triangles each (NaN in unused lanes).
-    groups: Vec<Group>,
-    /// Input index of each group lane (`u32::MAX` for unused lanes).
-    prims: Vec<u32>,
+    /// Leaves: up to eight triangles each (NaN in unused lanes) with their input indices.
+    leaves: Vec<Leaf>,
     bounds: (Vec3, Vec3),
     len: usize,
     /// Whether the AVX2 traversal runs ([`crate::simd::isa`], read at build time).
@@ -249,8 +257,7 @@ impl Bvh {
         let (root, refs) = build::build(tris, sah);
         let mut bvh = Bvh {
             nodes: Vec::with_capacity(tris.len() / 8 + 1),
-            groups: Vec::with_capacity(tris.len() / 4 + 1),
-            prims: Vec::new(),
+            leaves: Vec::with_capacity(tris.len() / 4 + 1),
             bounds: (Vec3::INFINITY, Vec3::NEG_INFINITY),
             len: tris.len(),
             avx2: crate::simd::isa().avx2(),
@@ -294,12 +301,12 @@ impl Bvh {
 
     /// Number of leaves (groups of up to eight triangles).
     pub fn leaf_count(&self) -> usize {
-        self.groups.len()
+        self.leaves.len()
     }
 
     /// Bytes used by nodes, leaves and the triangle index map.
     pub fn memory_bytes(&self) -> usize {
-        self.nodes.len() * size_of::<Node8>() + self.groups.len() * size_of::<Group>() + self.prims.len() * 4
+        self.nodes.len() * size_of::<Node8>() + self.leaves.len() * size_of::<Leaf>()
     }
 
     /// The portable traversal (lane loops); the AVX2 one does the same operations.
@@ -308,19 +315,18 @@ impl Bvh {
         let br = BoxRay::new(ray);
         let sr = ShearRay::new(ray);
         let mut tmax = ray.tmax;
-        let mut best: Option<Hit> = None;
-        let mut stack = [Entry::default(); STACK];
+        // (group, lane, t, b1, b2) of the closest hit so far
+        let mut best: Option<(usize, usize, f32, f32, f32)> = None;
+        let mut stack = [MaybeUninit::<Entry>::uninit(); STACK];
         let mut sp = 0usize;
         let mut cur = 0u32;
         loop {
             if cur & LEAF != 0 {
                 let g = (cur & !LEAF) as usize;
-                if let Some((l, t, b1, b2)) = group_hit_portable::<ANY>(&self.groups[g], &sr, ray, tmax) {
+                if let Some((l, t, b1, b2)) = group_hit_portable::<ANY>(&self.leaves[g].tris, &sr, ray, tmax)
+                {
                     tmax = t;
-                    best = Some(Hit { t, prim: self.prims[g * LANES + l], b1, b2 });
-                    if ANY {
-                        return best;
-                    }
+                    best = Some((g, l, t, b1, b2));
                 }
             } else {
                 let n = &self.nodes[cur as usize];
@@ -334,12 +340,13 @@ impl Bvh {
                         if c & LEAF != 0 {
                             let g = (c & !LEAF) as usize;
                             if let Some((l, t, b1, b2)) =
-                                group_hit_portable::<true>(&self.groups[g], &sr, ray, tmax)
+                                group_hit_portable::<true>(&self.leaves[g].tris, &sr, ray, tmax)
                             {
-                                return Some(Hit { t, prim: self.prims[g * LANES + l], b1, b2 });
+                                // any-hit: only whether; the triangle index is not looked up
+                                return Some(Hit { t, prim: l as u32, b1, b2 });
                             }
                         } else {
-                            stack[sp] = Entry { child: c, tnear: tn[l] };
+                            stack[sp].write(Entry { child: c, tnear: tn[l] });
                             sp += 1;
                         }
                     }
@@ -351,11 +358,13 @@ impl Bvh {
             // Pop the next item still in range.
             loop {
                 if sp == 0 {
-                    return best;
+                    return best.map(|(g, l, t, b1, b2)| Hit { t, prim: self.leaves[g].prim[l], b1, b2 });
                 }
                 sp -= 1;
-                if stack[sp].tnear <= tmax {
-                    cur = stack[sp].child;
+                // SAFETY: entries below `sp` were written.
+                let e = unsafe { stack[sp].assume_init() };
+                if e.tnear <= tmax {
+                    cur = e.child;
                     break;
                 }
             }

@@ -63,12 +63,12 @@ fn every_triangle_in_one_leaf_and_boxes_contain_their_subtrees() {
     for sah in [SahParams::default(), SahParams { traversal: 1.0, block: 8 }] {
         let b = Bvh::with_params(&tris, sah);
         let mut seen = vec![0u32; tris.len()];
-        for (g, lanes) in b.prims.chunks(LANES).enumerate() {
+        for (g, lanes) in b.leaves.iter().map(|x| &x.prim[..]).enumerate() {
             let used: Vec<u32> = lanes.iter().copied().filter(|&p| p != u32::MAX).collect();
             assert!(!used.is_empty() && used.len() <= LANES);
             for (l, &p) in used.iter().enumerate() {
                 seen[p as usize] += 1;
-                assert_eq!(b.groups[g].triangle(l), tris[p as usize]);
+                assert_eq!(b.leaves[g].tris.triangle(l), tris[p as usize]);
             }
         }
         assert!(seen.iter().all(|&c| c == 1));
@@ -85,7 +85,7 @@ fn every_triangle_in_one_leaf_and_boxes_contain_their_subtrees() {
                 if c & LEAF != 0 {
                     let g = (c & !LEAF) as usize;
                     for l in 0..LANES {
-                        let p = b.prims[g * LANES + l];
+                        let p = b.leaves[g].prim[l];
                         if p != u32::MAX {
                             for v in tris[p as usize] {
                                 assert!(v.cmpge(clo).all() && v.cmple(chi).all());
