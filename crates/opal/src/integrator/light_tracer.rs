@@ -71,10 +71,9 @@ use crate::bsdf::{Bxdf, TransportMode};
 use crate::geometry::Ray;
 use crate::math::{Frame, INV_PI, Vec2, Vec3};
 use crate::sampling::{Rng, RngStream, square_to_cosine_hemisphere, square_to_cosine_hemisphere_pdf};
-use crate::scene::Scene;
-use crate::scene::build::eval_texture;
-use crate::scene::desc::{BsdfDesc, TextureDesc};
+use crate::scene::{Material, Scene};
 use crate::spectrum::Spectrum;
+use crate::texture::Texture;
 use rayon::prelude::*;
 
 /// Texture map layout of one shape for deposits.
@@ -460,7 +459,7 @@ fn trace_fixed(
 #[derive(Clone, Copy)]
 enum Mat<'a> {
     /// Lambertian with this reflectance; `two_sided` = wrapped in `twosided`.
-    Diffuse { tex: &'a TextureDesc, two_sided: bool },
+    Diffuse { tex: &'a Texture, two_sided: bool },
     /// Anything else: `Scene::bsdf`.
     Generic,
 }
@@ -492,13 +491,11 @@ fn prims<'a>(scene: &'a Scene, targets: &[Option<IrradianceTarget>], fp: &FixedP
     let mut out = Vec::with_capacity(fp.factor.len());
     for (k, sh) in scene.shapes.iter().enumerate() {
         let m = &sh.mesh;
-        let (desc, two_sided) = match &sh.bsdf {
-            BsdfDesc::TwoSided(inner) => (inner.as_ref(), true),
-            d => (d, false),
-        };
-        let mat = match desc {
-            BsdfDesc::Diffuse { reflectance } => Mat::Diffuse { tex: reflectance, two_sided },
-            _ => Mat::Generic,
+        let mat = match &sh.material {
+            Material::Diffuse { reflectance, two_sided } => {
+                Mat::Diffuse { tex: reflectance, two_sided: *two_sided }
+            }
+            Material::Model { .. } => Mat::Generic,
         };
         let (width, height) = targets[k].as_ref().map_or((0, 0), |t| (t.width as u32, t.height as u32));
         for (j, idx) in m.indices.iter().enumerate() {
@@ -513,7 +510,7 @@ fn prims<'a>(scene: &'a Scene, targets: &[Option<IrradianceTarget>], fp: &FixedP
                 shape: k as u32,
                 factor: fp.factor[sh.first_prim as usize + j],
                 kd_pi: match mat {
-                    Mat::Diffuse { tex: TextureDesc::Constant(c), .. } => Some(*c * INV_PI),
+                    Mat::Diffuse { tex: Texture::Constant(c), .. } => Some(*c * INV_PI),
                     _ => None,
                 },
                 width,
@@ -531,7 +528,7 @@ enum Weight<'a> {
     Known(Spectrum),
     /// Lambert: `(reflectance(uv) · 1/π) · (|cos θi| / pdf)` (as `BsdfSample::weight`).
     Lambert {
-        tex: &'a TextureDesc,
+        tex: &'a Texture,
         uv: Vec2,
         ratio: f32,
     },
@@ -547,7 +544,7 @@ impl<'a> Weight<'a> {
     /// The weight of a Lambertian vertex of triangle `pr` at `uv` with `ratio = |cos θi| / pdf`;
     /// a bitmap's texels are prefetched for the lookup in [`Weight::get`].
     #[inline]
-    fn lambert(pr: &Prim<'a>, tex: &'a TextureDesc, uv: Vec2, ratio: f32) -> Self {
+    fn lambert(pr: &Prim<'a>, tex: &'a Texture, uv: Vec2, ratio: f32) -> Self {
         match pr.kd_pi {
             Some(kd_pi) => Weight::LambertConst { kd_pi, ratio },
             None => {
@@ -561,7 +558,7 @@ impl<'a> Weight<'a> {
     fn get(self) -> Spectrum {
         match self {
             Weight::Known(w) => w,
-            Weight::Lambert { tex, uv, ratio } => (eval_texture(tex, uv) * INV_PI) * ratio,
+            Weight::Lambert { tex, uv, ratio } => (tex.eval(uv) * INV_PI) * ratio,
             Weight::LambertConst { kd_pi, ratio } => kd_pi * ratio,
         }
     }
@@ -569,8 +566,8 @@ impl<'a> Weight<'a> {
 
 /// Hints the cache lines of a bitmap lookup at `uv` (no effect on results).
 #[inline]
-fn prefetch_texture(tex: &TextureDesc, uv: Vec2) {
-    if let TextureDesc::Bitmap(b) = tex {
+fn prefetch_texture(tex: &Texture, uv: Vec2) {
+    if let Texture::Bitmap(b) = tex {
         let img = &*b.image;
         if img.width == 0 || img.height == 0 || !(uv.x.is_finite() && uv.y.is_finite()) {
             return;
@@ -954,7 +951,7 @@ const FLAG_BITMAP: u32 = 2;
 /// reflectance, and whether any triangle has corner normals.
 struct LambertTable<'a> {
     rows: Vec<Row>,
-    tex: Vec<Option<&'a TextureDesc>>,
+    tex: Vec<Option<&'a Texture>>,
     any_normals: bool,
     /// Deposit factors ([`Prim::factor`]).
     factor: Vec<f64>,
@@ -1029,7 +1026,7 @@ struct Lanes<'a> {
     bitmap: u32,
     ratio: [f32; W],
     kd_pi: [[f32; W]; 3],
-    tex: [Option<&'a TextureDesc>; W],
+    tex: [Option<&'a Texture>; W],
     uv: [Vec2; W],
     active: u32,
 }
@@ -1042,7 +1039,7 @@ impl Lanes<'_> {
     fn settle(&mut self, m: u32, rr_depth: i32) -> u32 {
         for l in lanes_of(m & self.bitmap) {
             let tex = self.tex[l].expect("bitmap lanes hold their texture");
-            let k = eval_texture(tex, self.uv[l]) * INV_PI;
+            let k = tex.eval(self.uv[l]) * INV_PI;
             for c in 0..3 {
                 self.kd_pi[c][l] = k[c];
             }
@@ -1953,7 +1950,7 @@ mod tests {
     use super::*;
     use crate::geometry::TriangleMesh;
     use crate::math::{PI, Vec3};
-    use crate::scene::desc::{AreaEmitterDesc, EmitterDesc, SceneDesc, ShapeDesc};
+    use crate::scene::desc::{AreaEmitterDesc, BsdfDesc, EmitterDesc, SceneDesc, ShapeDesc, TextureDesc};
 
     /// Square [-h,h]² in the plane y = 0 facing +y with uv = ((x+h)/2h, (z+h)/2h).
     fn floor_quad(h: f32) -> TriangleMesh {
