@@ -13,12 +13,18 @@
 //!   edge texel is repeated at each reflection).
 //!
 //! Values are whatever the [`BitmapDesc`] holds (already linear: sRGB decoding happens at load
-//! unless `raw`). Tests: unit tests below (hand-computed nearest/bilinear/wrap cases) and
-//! `tests/scene_load.rs` (the Cornell-box back wall against Mitsuba's albedo AOV).
+//! unless `raw`). A built scene evaluates its own [`Texture`], made once from the description
+//! (bitmap pixels shared); both go through the same lookup.
+//!
+//! Tests: unit tests below (hand-computed nearest/bilinear/wrap cases, the runtime texture
+//! against its description) and `tests/scene_load.rs` (the Cornell-box back wall against
+//! Mitsuba's albedo AOV).
 
+use crate::image::Image;
 use crate::math::Vec2;
 use crate::scene::desc::{BitmapDesc, FilterType, TextureDesc, WrapMode};
 use crate::spectrum::Spectrum;
+use std::sync::Arc;
 
 /// Wraps an integer texel index into `[0, n)`.
 #[inline(always)]
@@ -86,36 +92,93 @@ impl BitmapDesc {
     /// Looks up the bitmap at `uv` with its filter and wrap mode.
     #[inline]
     pub fn eval(&self, uv: Vec2) -> Spectrum {
-        let img = &*self.image;
-        let (w, h) = (img.width, img.height);
-        if w == 0 || h == 0 {
-            return Spectrum::ZERO;
-        }
-        if !(uv.x.is_finite() && uv.y.is_finite()) {
-            return Spectrum::ZERO;
-        }
-        let (wx, wy) = (|x: i64| wrap_index(x, w, self.wrap), |y: i64| wrap_index(y, h, self.wrap));
-        match self.filter {
-            FilterType::Nearest => {
-                let x = floor(uv.x * w as f32) as i64;
-                let y = floor(uv.y * h as f32) as i64;
-                img.get(wx(x), wy(y))
+        lookup(&self.image, self.filter, self.wrap, uv)
+    }
+}
+
+/// A texture as a built scene evaluates it (made once from a [`TextureDesc`]).
+#[derive(Clone, Debug)]
+pub enum Texture {
+    /// Constant value.
+    Constant(Spectrum),
+    /// Bitmap lookup.
+    Bitmap(Bitmap),
+}
+
+/// A bitmap texture as a built scene evaluates it: the description's pixels (shared, not
+/// copied), filter and wrap mode.
+#[derive(Clone, Debug)]
+pub struct Bitmap {
+    /// Decoded image, linear values.
+    pub image: Arc<Image>,
+    /// Bilinear or nearest lookup.
+    pub filter: FilterType,
+    /// Wrap mode.
+    pub wrap: WrapMode,
+}
+
+impl Texture {
+    /// The runtime texture of a description (a bitmap shares the description's pixels).
+    pub fn new(desc: &TextureDesc) -> Texture {
+        match desc {
+            TextureDesc::Constant(c) => Texture::Constant(*c),
+            TextureDesc::Bitmap(b) => {
+                Texture::Bitmap(Bitmap { image: b.image.clone(), filter: b.filter, wrap: b.wrap })
             }
-            FilterType::Bilinear => {
-                let px = uv.x * w as f32 - 0.5;
-                let py = uv.y * h as f32 - 0.5;
-                let (fx, fy) = (floor(px), floor(py));
-                let (wx1, wy1) = (px - fx, py - fy);
-                let (wx0, wy0) = (1.0 - wx1, 1.0 - wy1);
-                let (x0, y0) = (fx as i64, fy as i64);
-                let (x0, x1, y0, y1) = (wx(x0), wx(x0 + 1), wy(y0), wy(y0 + 1));
-                let v00 = img.get(x0, y0);
-                let v10 = img.get(x1, y0);
-                let v01 = img.get(x0, y1);
-                let v11 = img.get(x1, y1);
-                // Same weights and accumulation order as Dr.Jit's `eval_nonaccel`.
-                v00 * (wx0 * wy0) + v10 * (wx1 * wy0) + v01 * (wx0 * wy1) + v11 * (wx1 * wy1)
-            }
+        }
+    }
+
+    /// Value at texture coordinates `uv` (Mitsuba's convention, see the module docs); the same
+    /// value as the description's [`TextureDesc::eval`].
+    #[inline]
+    pub fn eval(&self, uv: Vec2) -> Spectrum {
+        match self {
+            Texture::Constant(s) => *s,
+            Texture::Bitmap(b) => b.eval(uv),
+        }
+    }
+}
+
+impl Bitmap {
+    /// Looks up the bitmap at `uv` with its filter and wrap mode.
+    #[inline]
+    pub fn eval(&self, uv: Vec2) -> Spectrum {
+        lookup(&self.image, self.filter, self.wrap, uv)
+    }
+}
+
+/// Bitmap lookup at `uv` (the conventions of the module docs); zero for an empty image or a
+/// non-finite `uv`.
+#[inline]
+fn lookup(img: &Image, filter: FilterType, wrap: WrapMode, uv: Vec2) -> Spectrum {
+    let (w, h) = (img.width, img.height);
+    if w == 0 || h == 0 {
+        return Spectrum::ZERO;
+    }
+    if !(uv.x.is_finite() && uv.y.is_finite()) {
+        return Spectrum::ZERO;
+    }
+    let (wx, wy) = (|x: i64| wrap_index(x, w, wrap), |y: i64| wrap_index(y, h, wrap));
+    match filter {
+        FilterType::Nearest => {
+            let x = floor(uv.x * w as f32) as i64;
+            let y = floor(uv.y * h as f32) as i64;
+            img.get(wx(x), wy(y))
+        }
+        FilterType::Bilinear => {
+            let px = uv.x * w as f32 - 0.5;
+            let py = uv.y * h as f32 - 0.5;
+            let (fx, fy) = (floor(px), floor(py));
+            let (wx1, wy1) = (px - fx, py - fy);
+            let (wx0, wy0) = (1.0 - wx1, 1.0 - wy1);
+            let (x0, y0) = (fx as i64, fy as i64);
+            let (x0, x1, y0, y1) = (wx(x0), wx(x0 + 1), wy(y0), wy(y0 + 1));
+            let v00 = img.get(x0, y0);
+            let v10 = img.get(x1, y0);
+            let v01 = img.get(x0, y1);
+            let v11 = img.get(x1, y1);
+            // Same weights and accumulation order as Dr.Jit's `eval_nonaccel`.
+            v00 * (wx0 * wy0) + v10 * (wx1 * wy0) + v01 * (wx0 * wy1) + v11 * (wx1 * wy1)
         }
     }
 }
@@ -197,6 +260,26 @@ mod tests {
         // Mirror: texel -1 → 0, so (0+0)/2.
         let m = bitmap(FilterType::Bilinear, WrapMode::Mirror);
         assert!(m.eval(Vec2::new(0.0, 0.25))[0].abs() < 1e-6);
+    }
+
+    #[test]
+    fn runtime_texture_is_its_description() {
+        let mut rng = crate::sampling::Rng::new(9, 0, 0);
+        for filter in [FilterType::Nearest, FilterType::Bilinear] {
+            for wrap in [WrapMode::Repeat, WrapMode::Mirror, WrapMode::Clamp] {
+                let desc = TextureDesc::Bitmap(bitmap(filter, wrap));
+                let tex = Texture::new(&desc);
+                let (Texture::Bitmap(b), TextureDesc::Bitmap(d)) = (&tex, &desc) else { unreachable!() };
+                assert!(Arc::ptr_eq(&b.image, &d.image), "pixels shared, not copied");
+                for _ in 0..1000 {
+                    let uv = Vec2::new(rng.next_f32() * 4.0 - 1.5, rng.next_f32() * 4.0 - 1.5);
+                    assert_eq!(tex.eval(uv).0.map(f32::to_bits), desc.eval(uv).0.map(f32::to_bits));
+                }
+                assert_eq!(tex.eval(Vec2::new(f32::NAN, 0.5)).0, [0.0; 3]);
+            }
+        }
+        let c = Spectrum::rgb(0.1, 0.2, 0.3);
+        assert_eq!(Texture::new(&TextureDesc::Constant(c)).eval(Vec2::new(0.7, 0.1)), c);
     }
 
     #[test]

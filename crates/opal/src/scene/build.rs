@@ -1,10 +1,11 @@
 //! Building a renderable [`Scene`] from a [`SceneDesc`]: the one place that validates ranges,
-//! resolves materials, flattens meshes into one triangle soup, builds the acceleration
-//! structure and the light sampler.
+//! resolves materials (into runtime [`Material`]s, once: a hit only looks its shape's up),
+//! flattens meshes into one triangle soup, builds the acceleration structure and the light
+//! sampler.
 
-use super::desc::{BsdfDesc, EmitterDesc, IntegratorDesc, SceneDesc, TextureDesc};
+use super::desc::{EmitterDesc, IntegratorDesc, SceneDesc, TextureDesc};
+use super::material::{Bsdf, Material};
 use crate::accel::{Accel, Hit};
-use crate::bsdf::{Bxdfs, Lambert};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geometry::{Ray, TriangleMesh};
@@ -19,8 +20,8 @@ pub struct Shape {
     pub id: String,
     /// World-space mesh.
     pub mesh: TriangleMesh,
-    /// Material.
-    pub bsdf: BsdfDesc,
+    /// Material (built once from the description's `BsdfDesc`).
+    pub material: Material,
     /// Emitted radiance when the shape is an area light.
     pub emission: Option<Spectrum>,
     /// Index of the first triangle of this shape in the scene's soup.
@@ -101,7 +102,7 @@ impl Scene {
                     ));
                 }
             }
-            validate_bsdf(&s.id, &s.bsdf)?;
+            let material = Material::new(&s.id, &s.bsdf)?;
             let emission = s.emitter.as_ref().map(|e| e.radiance);
             if let Some(le) = emission {
                 if !le.is_finite() || le.0.iter().any(|&c| c < 0.0) {
@@ -129,13 +130,7 @@ impl Scene {
                 }
                 prim_light.push(light_idx);
             }
-            shapes.push(Shape {
-                id: s.id.clone(),
-                mesh: m.clone(),
-                bsdf: s.bsdf.clone(),
-                emission,
-                first_prim,
-            });
+            shapes.push(Shape { id: s.id.clone(), mesh: m.clone(), material, emission, first_prim });
         }
         for e in &desc.emitters {
             match e {
@@ -251,66 +246,24 @@ impl Scene {
         self.light_sampler.as_ref()
     }
 
-    /// Shading frame and scattering model at a hit, for the outgoing world direction `wo`.
-    pub fn bsdf(&self, si: &SurfaceInteraction, wo: Vec3) -> (Frame, Bxdfs) {
-        let desc = &self.shapes[si.shape as usize].bsdf;
-        let (desc, flip) = match desc {
-            BsdfDesc::TwoSided(inner) => (inner.as_ref(), wo.dot(si.ng) < 0.0),
-            d => (d, false),
-        };
+    /// Shading frame and scattering model at a hit, for the outgoing world direction `wo`
+    /// (a view into the shape's material: nothing is cloned).
+    #[inline]
+    pub fn bsdf(&self, si: &SurfaceInteraction, wo: Vec3) -> (Frame, Bsdf<'_>) {
+        let m = &self.shapes[si.shape as usize].material;
+        let flip = m.two_sided() && wo.dot(si.ng) < 0.0;
         let n = if flip { -si.ns } else { si.ns };
-        let frame = Frame::from_normal(n);
-        let bxdf = match desc {
-            BsdfDesc::Diffuse { reflectance } => {
-                Bxdfs::Lambert(Lambert::new(eval_texture(reflectance, si.uv)))
-            }
-            BsdfDesc::Lobe(b) => b.clone(),
-            BsdfDesc::TwoSided(_) => unreachable!("nested twosided rejected at build"),
-        };
-        (frame, bxdf)
+        (Frame::from_normal(n), m.bsdf(si.uv))
     }
 
     /// Albedo (diffuse reflectance) of a shape at `uv`, when its BSDF is diffuse.
     pub fn diffuse_albedo(&self, shape: u32, uv: Vec2) -> Option<Spectrum> {
-        let mut d = &self.shapes[shape as usize].bsdf;
-        if let BsdfDesc::TwoSided(inner) = d {
-            d = inner.as_ref();
-        }
-        match d {
-            BsdfDesc::Diffuse { reflectance } => Some(eval_texture(reflectance, uv)),
-            _ => None,
-        }
+        self.shapes[shape as usize].material.diffuse_albedo(uv)
     }
 }
 
-fn validate_bsdf(id: &str, b: &BsdfDesc) -> Result<()> {
-    match b {
-        BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(c) } => {
-            if !c.is_finite() || c.0.iter().any(|&v| v < 0.0) {
-                return Err(Error::invalid(
-                    format!("bsdf of shape '{id}'"),
-                    format!("reflectance {:?}", c.0),
-                ));
-            }
-            Ok(())
-        }
-        BsdfDesc::Diffuse { .. } | BsdfDesc::Lobe(_) => Ok(()),
-        BsdfDesc::TwoSided(inner) => match inner.as_ref() {
-            BsdfDesc::TwoSided(_) => {
-                Err(Error::invalid(format!("bsdf of shape '{id}'"), "twosided inside twosided"))
-            }
-            BsdfDesc::Lobe(crate::bsdf::Bxdfs::SmoothDielectric(_) | crate::bsdf::Bxdfs::Tabulated(_)) => {
-                Err(Error::invalid(
-                    format!("bsdf of shape '{id}'"),
-                    "twosided around a dielectric interface (dielectric, tabulated): an interface already has two sides (inside = behind the normal)",
-                ))
-            }
-            other => validate_bsdf(id, other),
-        },
-    }
-}
-
-/// Evaluates a texture at `uv`.
+/// Evaluates a texture description at `uv` (a built scene evaluates its runtime
+/// [`crate::texture::Texture`]s instead: the same values).
 pub fn eval_texture(t: &TextureDesc, uv: Vec2) -> Spectrum {
     match t {
         TextureDesc::Constant(c) => *c,

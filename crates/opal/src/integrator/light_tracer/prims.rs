@@ -9,16 +9,16 @@ use super::IrradianceTarget;
 use super::fixed_point::FixedPoint;
 use super::sink::prefetch;
 use crate::math::{INV_PI, Vec2, Vec3};
+use crate::scene::Material;
 use crate::scene::Scene;
-use crate::scene::build::eval_texture;
-use crate::scene::desc::{BsdfDesc, TextureDesc};
 use crate::spectrum::Spectrum;
+use crate::texture::Texture;
 
 /// Material of a triangle as the light tracer needs it.
 #[derive(Clone, Copy)]
 pub(super) enum Mat<'a> {
     /// Lambertian with this reflectance; `two_sided` = wrapped in `twosided`.
-    Diffuse { tex: &'a TextureDesc, two_sided: bool },
+    Diffuse { tex: &'a Texture, two_sided: bool },
     /// Anything else: `Scene::bsdf`.
     Generic,
 }
@@ -54,13 +54,11 @@ pub(super) fn prims<'a>(
     let mut out = Vec::with_capacity(fp.factor.len());
     for (k, sh) in scene.shapes.iter().enumerate() {
         let m = &sh.mesh;
-        let (desc, two_sided) = match &sh.bsdf {
-            BsdfDesc::TwoSided(inner) => (inner.as_ref(), true),
-            d => (d, false),
-        };
-        let mat = match desc {
-            BsdfDesc::Diffuse { reflectance } => Mat::Diffuse { tex: reflectance, two_sided },
-            _ => Mat::Generic,
+        let mat = match &sh.material {
+            Material::Diffuse { reflectance, two_sided } => {
+                Mat::Diffuse { tex: reflectance, two_sided: *two_sided }
+            }
+            Material::Model { .. } => Mat::Generic,
         };
         let (width, height) = targets[k].as_ref().map_or((0, 0), |t| (t.width as u32, t.height as u32));
         for (j, idx) in m.indices.iter().enumerate() {
@@ -75,7 +73,7 @@ pub(super) fn prims<'a>(
                 shape: k as u32,
                 factor: fp.factor[sh.first_prim as usize + j],
                 kd_pi: match mat {
-                    Mat::Diffuse { tex: TextureDesc::Constant(c), .. } => Some(*c * INV_PI),
+                    Mat::Diffuse { tex: Texture::Constant(c), .. } => Some(*c * INV_PI),
                     _ => None,
                 },
                 width,
@@ -93,7 +91,7 @@ pub(super) enum Weight<'a> {
     Known(Spectrum),
     /// Lambert: `(reflectance(uv) · 1/π) · (|cos θi| / pdf)` (as `BsdfSample::weight`).
     Lambert {
-        tex: &'a TextureDesc,
+        tex: &'a Texture,
         uv: Vec2,
         ratio: f32,
     },
@@ -109,7 +107,7 @@ impl<'a> Weight<'a> {
     /// The weight of a Lambertian vertex of triangle `pr` at `uv` with `ratio = |cos θi| / pdf`;
     /// a bitmap's texels are prefetched for the lookup in [`Weight::get`].
     #[inline]
-    pub(super) fn lambert(pr: &Prim<'a>, tex: &'a TextureDesc, uv: Vec2, ratio: f32) -> Self {
+    pub(super) fn lambert(pr: &Prim<'a>, tex: &'a Texture, uv: Vec2, ratio: f32) -> Self {
         match pr.kd_pi {
             Some(kd_pi) => Weight::LambertConst { kd_pi, ratio },
             None => {
@@ -123,7 +121,7 @@ impl<'a> Weight<'a> {
     pub(super) fn get(self) -> Spectrum {
         match self {
             Weight::Known(w) => w,
-            Weight::Lambert { tex, uv, ratio } => (eval_texture(tex, uv) * INV_PI) * ratio,
+            Weight::Lambert { tex, uv, ratio } => (tex.eval(uv) * INV_PI) * ratio,
             Weight::LambertConst { kd_pi, ratio } => kd_pi * ratio,
         }
     }
@@ -131,8 +129,8 @@ impl<'a> Weight<'a> {
 
 /// Hints the cache lines of a bitmap lookup at `uv` (no effect on results).
 #[inline]
-pub(super) fn prefetch_texture(tex: &TextureDesc, uv: Vec2) {
-    if let TextureDesc::Bitmap(b) = tex {
+pub(super) fn prefetch_texture(tex: &Texture, uv: Vec2) {
+    if let Texture::Bitmap(b) = tex {
         let img = &*b.image;
         if img.width == 0 || img.height == 0 || !(uv.x.is_finite() && uv.y.is_finite()) {
             return;

@@ -25,9 +25,8 @@ use crate::accel::packet::RayPacket;
 use crate::math::{INV_PI, Vec2};
 use crate::sampling::{Rng, RngStream};
 use crate::scene::Scene;
-use crate::scene::build::eval_texture;
-use crate::scene::desc::TextureDesc;
 use crate::spectrum::Spectrum;
+use crate::texture::Texture;
 
 /// Paths advanced together by [`Wavefront`] (one per SIMD lane).
 pub(super) const W: usize = 8;
@@ -208,7 +207,7 @@ pub(super) const FLAG_BITMAP: u32 = 2;
 /// reflectance, and whether any triangle has corner normals.
 pub(super) struct LambertTable<'a> {
     rows: Vec<Row>,
-    tex: Vec<Option<&'a TextureDesc>>,
+    tex: Vec<Option<&'a Texture>>,
     any_normals: bool,
     /// Deposit factors ([`Prim::factor`]).
     factor: Vec<f64>,
@@ -283,7 +282,7 @@ struct Lanes<'a> {
     bitmap: u32,
     ratio: [f32; W],
     kd_pi: [[f32; W]; 3],
-    tex: [Option<&'a TextureDesc>; W],
+    tex: [Option<&'a Texture>; W],
     uv: [Vec2; W],
     active: u32,
 }
@@ -297,7 +296,7 @@ impl Lanes<'_> {
     fn settle(&mut self, m: u32, rr_depth: i32) -> u32 {
         for l in lanes_of(m & self.bitmap) {
             let tex = self.tex[l].expect("bitmap lanes hold their texture");
-            let k = eval_texture(tex, self.uv[l]) * INV_PI;
+            let k = tex.eval(self.uv[l]) * INV_PI;
             for c in 0..3 {
                 self.kd_pi[c][l] = k[c];
             }
