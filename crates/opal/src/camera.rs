@@ -7,7 +7,7 @@
 //! * `d_local = (−(2px/W − 1)·tan(fx/2), −(2py/H − 1)·tan(fy/2), 1)` with
 //!   `tan(fy/2) = tan(fx/2)·H/W`; `d_world = normalize(M₃ₓ₃ · d_local)`; origin = M's translation.
 //!
-//! Tests: `tests/camera_rays.rs` compares the rays with those of Mitsuba's pixel-centre AOV
+//! Tests: `tests/mitsuba_cbox.rs` (`camera_rays_hit_mitsuba_aov_positions`) compares the rays with those of Mitsuba's pixel-centre AOV
 //! (hit positions of 8 views) of the reference Cornell box.
 
 use crate::geometry::Ray;

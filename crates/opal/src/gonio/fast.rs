@@ -501,23 +501,12 @@ pub(super) enum Kernels {
 impl Kernels {
     /// The widest the CPU supports (`Portable` when `simd` is false).
     pub(super) fn detect(simd: bool) -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if simd {
-            if std::arch::is_x86_feature_detected!("avx512f")
-                && std::arch::is_x86_feature_detected!("avx512vl")
-                && std::arch::is_x86_feature_detected!("avx512dq")
-                && std::arch::is_x86_feature_detected!("avx512bw")
-                && std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                return Kernels::Avx512;
-            }
-            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-                return Kernels::Avx2;
-            }
+        // the instruction set detected once per process (`crate::simd`)
+        match crate::simd::isa() {
+            crate::simd::Isa::Avx512 if simd => Kernels::Avx512,
+            crate::simd::Isa::Avx2 if simd => Kernels::Avx2,
+            _ => Kernels::Portable,
         }
-        let _ = simd;
-        Kernels::Portable
     }
 }
 

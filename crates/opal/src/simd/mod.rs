@@ -1,10 +1,10 @@
 //! SIMD policy: which vector instruction set the engine's lane kernels use, decided once.
 //!
 //! * [`isa`] detects the CPU's features **once per process** (first call, cached in a
-//!   [`OnceLock`]). Structures that run lane kernels (the BVH, the tiny-scene accelerators, the
-//!   light tracer's wavefront, the goniophotometer's photon wavefront) read it when they are
-//!   built or when a pass starts and keep the answer; no feature check runs per ray, per packet
-//!   or per path.
+//!   [`OnceLock`]). Structures that run lane kernels read it when they are built (the BVH, the
+//!   tiny-scene accelerators) or when a pass starts (the light tracer's wavefront, the
+//!   goniophotometer's photon wavefront) and keep the answer; no feature check runs per ray, per
+//!   packet or per path.
 //! * Lane types for portable kernels live in [`lanes`] (`F<N>`, `I<N>`, `M<N>`: plain lane loops
 //!   that LLVM vectorises for whatever the enclosing function is compiled for).
 //! * Every AVX2 kernel sits beside its scalar/portable original and is tested bit for bit against
@@ -20,17 +20,25 @@ pub use crate::fastmath::wide as lanes;
 /// The vector instruction set the lane kernels use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Isa {
-    /// AVX2 (x86-64): 8 lanes of f32 per instruction.
+    /// AVX-512 (F, VL, DQ, BW) with AVX2 and FMA (x86-64): 16 lanes of f32 per instruction.
+    Avx512,
+    /// AVX2 with FMA (x86-64): 8 lanes of f32 per instruction.
     Avx2,
     /// Portable lane loops (any CPU).
     Portable,
 }
 
 impl Isa {
-    /// Whether the AVX2 kernels may run.
+    /// Whether the AVX2 kernels may run (also on AVX-512 CPUs).
     #[inline(always)]
     pub fn avx2(self) -> bool {
-        self == Isa::Avx2
+        matches!(self, Isa::Avx2 | Isa::Avx512)
+    }
+
+    /// Whether the AVX-512 kernels may run.
+    #[inline(always)]
+    pub fn avx512(self) -> bool {
+        self == Isa::Avx512
     }
 
     /// The portable instruction set, whatever the CPU (for tests and comparisons).
@@ -47,8 +55,14 @@ pub fn isa() -> Isa {
 
 fn detect() -> Isa {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        return Isa::Avx2;
+    {
+        use std::arch::is_x86_feature_detected as has;
+        if has!("avx2") && has!("fma") {
+            if has!("avx512f") && has!("avx512vl") && has!("avx512dq") && has!("avx512bw") {
+                return Isa::Avx512;
+            }
+            return Isa::Avx2;
+        }
     }
     Isa::Portable
 }

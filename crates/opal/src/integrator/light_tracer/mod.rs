@@ -54,10 +54,11 @@
 //! same order); finished lanes are refilled from path starts prepared eight at a time
 //! (triangle lights in SIMD) — each
 //! path is bit for bit the one `trace_path` traces alone (its own generator, same operations),
-//! so only the order of the integer deposits changes. In scenes of up to `TINY_MAX` triangles
-//! the eight rays are traced together, one per SIMD lane
-//! ([`crate::accel::packet::PacketAccel`], same hits as [`crate::accel::TinyAccel`]);
-//! otherwise through `Scene::intersect_hit`.
+//! so only the order of the integer deposits changes. The eight rays go through the scene's
+//! one intersection API, [`crate::accel::Accel::intersect8`] (in scenes of up to `TINY_MAX`
+//! triangles they are traced together, one per SIMD lane, by
+//! [`crate::accel::packet::PacketAccel`]; larger scenes run the 8-wide BVH per lane) — the
+//! same hits as `Scene::intersect_hit`.
 //!
 //! **Files** (`light_tracer/`):
 //! * `mod.rs` (this file): the settings, the outputs, [`trace`] and the pass itself
@@ -263,7 +264,8 @@ fn trace_fixed(
     } else {
         LambertTable::new(scene, &prims)
     };
-    // Small scenes: the wavefront's eight rays are traced together, one per SIMD lane.
+    // The wavefront's eight rays go through `Accel::intersect8` (tests may ask for one
+    // `Scene::intersect_hit` per lane instead).
     let accel = (engine == Engine::Auto).then(|| scene.accel());
     let results: Vec<(Acc, u64)> = (0..workers)
         .into_par_iter()

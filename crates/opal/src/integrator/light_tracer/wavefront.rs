@@ -384,10 +384,8 @@ impl Wavefront {
     /// Whether this CPU runs the wavefront (AVX2); otherwise the paths are traced one at a time
     /// ([`trace_path`], same results).
     pub(super) fn available() -> bool {
-        #[cfg(target_arch = "x86_64")]
-        return std::arch::is_x86_feature_detected!("avx2");
-        #[cfg(not(target_arch = "x86_64"))]
-        return false;
+        // detected once per process (`crate::simd`)
+        crate::simd::isa().avx2()
     }
 
     /// Traces `paths` (the caller checked [`Wavefront::available`]).
