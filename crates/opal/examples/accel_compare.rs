@@ -117,6 +117,31 @@ pub fn trace<F: Fn(&Ray) -> Option<Hit> + Sync>(rays: &[Ray], f: F) -> (usize, f
 }
 
 /// Counts occluded rays in parallel chunks.
+/// Like [`trace`], eight rays at a time through `Bvh::intersect8` (interleaved traversals).
+pub fn trace8(rays: &[Ray], bvh: &Bvh) -> (usize, f64) {
+    use opal::accel::packet::{PACKET, RayPacket};
+    rays.par_chunks(4096)
+        .map(|ch| {
+            let mut n = 0;
+            let mut s = 0.0f64;
+            for c in ch.chunks(PACKET) {
+                let mut p = RayPacket::default();
+                for (l, r) in c.iter().enumerate() {
+                    p.set(l, r);
+                }
+                let h = bvh.intersect8(&p);
+                for l in 0..c.len() {
+                    if let Some(h) = h.hit(l) {
+                        n += 1;
+                        s += h.t as f64;
+                    }
+                }
+            }
+            (n, s)
+        })
+        .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
+}
+
 pub fn trace_any<F: Fn(&Ray) -> bool + Sync>(rays: &[Ray], f: F) -> usize {
     rays.par_chunks(4096).map(|ch| ch.iter().filter(|r| f(r)).count()).sum()
 }
@@ -202,19 +227,23 @@ fn run_scene(label: &str, tris: Vec<[Vec3; 3]>, rays: &[Ray], repeats: usize) {
     // Same answers (t identical: same triangle test; prims may differ on exact ties).
     let (ha, sa) = trace(rays, |r| bvh.intersect(r));
     let (hb, sb) = trace(rays, |r| ob.intersect(r));
+    assert_eq!(trace8(rays, &bvh), (ha, sa), "packets differ from single rays");
     assert_eq!(ha, hb, "hit counts differ");
     assert!((sa - sb).abs() <= 1e-9 * sa.abs(), "t sums differ: {sa} vs {sb}");
     let (mut c_opal, mut c_ob, mut a_opal, mut a_ob) = (vec![], vec![], vec![], vec![]);
+    let mut c_opal8 = vec![];
     for _ in 0..repeats {
         // Interleaved so both see the same machine load.
         let t = |x: (f64, f64, _)| (x.0, x.1);
         c_opal.push(t(time(|| trace(rays, |r| bvh.intersect(r)))));
+        c_opal8.push(t(time(|| trace8(rays, &bvh))));
         c_ob.push(t(time(|| trace(rays, |r| ob.intersect(r)))));
         let t = |x: (f64, f64, _)| (x.0, x.1);
         a_opal.push(t(time(|| trace_any(rays, |r| bvh.occluded(r)))));
         a_ob.push(t(time(|| trace_any(rays, |r| ob.occluded(r)))));
     }
     report("closest-hit opal Bvh", rays.len(), c_opal);
+    report("closest-hit opal Bvh x8", rays.len(), c_opal8);
     report("closest-hit obvhs CwBvh", rays.len(), c_ob);
     report("any-hit     opal Bvh", rays.len(), a_opal);
     report("any-hit     obvhs CwBvh", rays.len(), a_ob);

@@ -11,10 +11,42 @@ use crate::geometry::Ray;
 use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
 
+/// The slab test of a node's eight boxes (see `BoxRay::hit8`): entry distances and the mask of
+/// the boxes overlapping `(0, tmax)`.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn box8(
+    n: &super::Node8,
+    o: &[__m256; 3],
+    inv: &[__m256; 3],
+    near: &[usize; 3],
+    scale: __m256,
+    tmax: f32,
+) -> (__m256, u32) {
+    let mut t0 = _mm256_setzero_ps();
+    let mut t1 = _mm256_set1_ps(tmax);
+    for a in 0..3 {
+        // SAFETY: `Node8` is 64-byte aligned and every plane row is 32 bytes at a multiple of
+        // 32; `near[a]` is 0 or 1.
+        let (pn, pf) = unsafe {
+            (
+                _mm256_load_ps(n.b.get_unchecked(near[a])[a].as_ptr()),
+                _mm256_load_ps(n.b.get_unchecked(1 - near[a])[a].as_ptr()),
+            )
+        };
+        let tn = _mm256_mul_ps(_mm256_sub_ps(pn, o[a]), inv[a]);
+        let tf = _mm256_mul_ps(_mm256_mul_ps(_mm256_sub_ps(pf, o[a]), inv[a]), scale);
+        // maxps(tn, t0) returns t0 when tn is NaN: the portable `if tn > t0`.
+        t0 = _mm256_max_ps(tn, t0);
+        t1 = _mm256_min_ps(tf, t1);
+    }
+    (t0, _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1)) as u32)
+}
+
 impl Bvh {
     /// Hints the cache lines of child `c` (a node or a leaf).
     #[inline(always)]
-    fn prefetch(&self, c: u32) {
+    pub(super) fn prefetch(&self, c: u32) {
         let (p, lines): (*const i8, usize) = if c & LEAF != 0 {
             (self.leaves[(c & !LEAF) as usize..].as_ptr().cast(), 5)
         } else {
@@ -54,24 +86,7 @@ impl Bvh {
             } else {
                 // SAFETY: interior references are built from `nodes` indices.
                 let n = unsafe { self.nodes.get_unchecked(cur as usize) };
-                let mut t0 = _mm256_setzero_ps();
-                let mut t1 = _mm256_set1_ps(tmax);
-                for a in 0..3 {
-                    // SAFETY: `Node8` is 64-byte aligned and every plane row is 32 bytes at a
-                    // multiple of 32; `near[a]` is 0 or 1.
-                    let (pn, pf) = unsafe {
-                        (
-                            _mm256_load_ps(n.b.get_unchecked(near[a])[a].as_ptr()),
-                            _mm256_load_ps(n.b.get_unchecked(1 - near[a])[a].as_ptr()),
-                        )
-                    };
-                    let tn = _mm256_mul_ps(_mm256_sub_ps(pn, o[a]), inv[a]);
-                    let tf = _mm256_mul_ps(_mm256_mul_ps(_mm256_sub_ps(pf, o[a]), inv[a]), scale);
-                    // maxps(tn, t0) returns t0 when tn is NaN: the portable `if tn > t0`.
-                    t0 = _mm256_max_ps(tn, t0);
-                    t1 = _mm256_min_ps(tf, t1);
-                }
-                let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1)) as u32;
+                let (t0, mask) = box8(n, &o, &inv, &near, scale, tmax);
                 if mask == 0 {
                     // fall through to the pop
                 } else if ANY {

@@ -22,8 +22,10 @@
 //!   (`avx.rs`) performs the portable traversal's operations in the same order (no FMA; `max`/
 //!   `min` with the same NaN rule), so both visit the same nodes and return the same hit, bit for
 //!   bit (tested).
-//! * **Packets**: [`Bvh::intersect8`] answers eight rays (one [`RayPacket`]); on this incoherent
-//!   workload (light paths) each lane runs the single-ray traversal.
+//! * **Packets / streams**: [`Bvh::intersect8`] answers eight independent rays (one
+//!   [`RayPacket`], e.g. the light tracer's wavefront): with AVX2 their eight traversals are
+//!   interleaved one visit at a time, each lane prefetching its next item while the others work
+//!   (`stream.rs`), which hides memory latency on large scenes; same hits as single rays.
 //!
 //! Tests: unit tests below; `crates/opal/tests/accel.rs` (against brute force on random soups
 //! and meshes with proptest, watertightness, self-intersection); benchmarks:
@@ -32,6 +34,8 @@
 #[cfg(target_arch = "x86_64")]
 mod avx;
 mod build;
+#[cfg(target_arch = "x86_64")]
+mod stream;
 
 pub use build::{BINS, MAX_LEAF, PAR_THRESHOLD, SahParams};
 
@@ -393,8 +397,15 @@ impl Bvh {
         self.dispatch::<true>(ray).is_some()
     }
 
-    /// Closest hits of the eight rays of a packet (lanes with `tmax ≤ 0` are inactive and miss).
+    /// Closest hits of the eight rays of a packet (lanes with `tmax ≤ 0` are inactive and miss):
+    /// the hits of [`Bvh::intersect`], bit for bit. With AVX2 the eight traversals are
+    /// interleaved (`stream.rs`: each lane's next node is prefetched while the others work).
     pub fn intersect8(&self, rays: &RayPacket) -> PacketHits {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: the CPU supports AVX2 (detected when the BVH was built).
+            return unsafe { self.intersect8_avx2(rays) };
+        }
         let mut h = PacketHits::NONE;
         for l in 0..PACKET {
             if rays.tmax[l] > 0.0 {

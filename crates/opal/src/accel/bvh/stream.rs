@@ -1,0 +1,131 @@
+//! Eight independent rays traversed together, interleaved (AVX2): [`Bvh::intersect8`]'s fast
+//! path for incoherent rays on large scenes.
+//!
+//! A single ray's traversal is a chain of dependent loads (node → child → …) and on a large
+//! mesh most of its time is spent waiting for memory. Here each lane keeps its own traversal
+//! state ([`Walker`]: ray constants, `tmax`, the closest hit so far, the current item and its
+//! stack) and the lanes take turns doing **one visit** each (a node's box test or a leaf's
+//! triangles); after its visit a lane prefetches the item it visits next, which then has seven
+//! other lanes' visits to arrive. Each lane performs exactly the operations of the single-ray
+//! traversal (`avx.rs`) in the same order — the same box test ([`super::avx::box8`]), the same
+//! ordering of children, the same leaf kernel — so every lane returns the single-ray hit, bit for
+//! bit (tested: `super::tests::interleaved_packets_match_single_rays_bit_for_bit`).
+
+use super::avx::box8;
+use super::{BOX_FAR_SCALE, Bvh, Entry, LEAF, STACK, order_children};
+use crate::accel::Hit;
+use crate::accel::group::{AvxRay, ShearRay, group_hit_avx};
+use crate::accel::packet::{PACKET, PacketHits, RayPacket};
+use crate::geometry::Ray;
+use std::arch::x86_64::*;
+use std::mem::MaybeUninit;
+
+/// One lane's traversal state.
+struct Walker {
+    ray: Ray,
+    o: [__m256; 3],
+    inv: [__m256; 3],
+    near: [usize; 3],
+    ar: AvxRay,
+    tmax: f32,
+    /// (leaf, lane, t, b1, b2) of the closest hit so far.
+    best: Option<(usize, usize, f32, f32, f32)>,
+    /// The item to visit next.
+    cur: u32,
+    sp: usize,
+}
+
+impl Walker {
+    #[target_feature(enable = "avx2")]
+    fn new(ray: Ray) -> Walker {
+        let inv_s = [1.0 / ray.d.x, 1.0 / ray.d.y, 1.0 / ray.d.z];
+        Walker {
+            o: [_mm256_set1_ps(ray.o.x), _mm256_set1_ps(ray.o.y), _mm256_set1_ps(ray.o.z)],
+            inv: inv_s.map(|i| _mm256_set1_ps(i)),
+            near: inv_s.map(|i| (i < 0.0) as usize),
+            ar: AvxRay::new(&ShearRay::new(&ray)),
+            tmax: ray.tmax,
+            best: None,
+            cur: 0,
+            sp: 0,
+            ray,
+        }
+    }
+
+    /// Visits the current item and moves to the next one; `false` when the traversal is over.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn step(&mut self, bvh: &Bvh, stack: &mut [MaybeUninit<Entry>; STACK]) -> bool {
+        let cur = self.cur;
+        if cur & LEAF != 0 {
+            let g = (cur & !LEAF) as usize;
+            // SAFETY: leaf references are built from `leaves` indices.
+            let group = unsafe { &bvh.leaves.get_unchecked(g).tris };
+            if let Some((l, t, b1, b2)) = group_hit_avx::<false>(group, &self.ar, &self.ray, self.tmax) {
+                self.tmax = t;
+                self.best = Some((g, l, t, b1, b2));
+            }
+        } else {
+            // SAFETY: interior references are built from `nodes` indices.
+            let n = unsafe { bvh.nodes.get_unchecked(cur as usize) };
+            let scale = _mm256_set1_ps(BOX_FAR_SCALE);
+            let (t0, mask) = box8(n, &self.o, &self.inv, &self.near, scale, self.tmax);
+            if mask != 0 {
+                let mut tn = [0.0f32; super::WIDTH];
+                // SAFETY: 8 floats, unaligned store.
+                unsafe { _mm256_storeu_ps(tn.as_mut_ptr(), t0) };
+                self.cur = order_children(mask, &tn, &n.child, stack, &mut self.sp);
+                bvh.prefetch(self.cur);
+                return true;
+            }
+        }
+        loop {
+            if self.sp == 0 {
+                return false;
+            }
+            self.sp -= 1;
+            // SAFETY: entries below `sp` were written.
+            let e = unsafe { stack[self.sp].assume_init() };
+            if e.tnear <= self.tmax {
+                self.cur = e.child;
+                bvh.prefetch(self.cur);
+                return true;
+            }
+        }
+    }
+
+    fn hit(&self, bvh: &Bvh) -> Option<Hit> {
+        self.best.map(|(g, l, t, b1, b2)| Hit { t, prim: bvh.leaves[g].prim[l], b1, b2 })
+    }
+}
+
+impl Bvh {
+    /// Closest hits of the active lanes (`tmax > 0`) of `rays`, their traversals interleaved.
+    #[target_feature(enable = "avx2")]
+    pub(super) fn intersect8_avx2(&self, rays: &RayPacket) -> PacketHits {
+        let mut hits = PacketHits::NONE;
+        let mut walkers: [MaybeUninit<Walker>; PACKET] = [const { MaybeUninit::uninit() }; PACKET];
+        let mut stacks = [[MaybeUninit::<Entry>::uninit(); STACK]; PACKET];
+        let mut active = 0u32;
+        for (l, w) in walkers.iter_mut().enumerate() {
+            if rays.tmax[l] > 0.0 {
+                w.write(Walker::new(rays.ray(l)));
+                active |= 1 << l;
+            }
+        }
+        while active != 0 {
+            let mut m = active;
+            while m != 0 {
+                let l = m.trailing_zeros() as usize;
+                m &= m - 1;
+                // SAFETY: lanes in `active` were initialised above.
+                let w = unsafe { walkers[l].assume_init_mut() };
+                if !w.step(self, &mut stacks[l]) {
+                    hits.set(l, w.hit(self));
+                    active &= !(1 << l);
+                }
+            }
+        }
+        hits
+    }
+}
