@@ -7,8 +7,8 @@
 
 use super::starts::{StartIn, StartOut, start_lanes};
 use super::wavefront::{
-    DepositLanes, FLAG_BITMAP, FLAG_TWO_SIDED, ROW_FLAGS, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG, ROW_NG_OFF,
-    ROW_SHAPE, ROW_SIZE, ROW_UV,
+    DepositLanes, FLAG_BITMAP, FLAG_TWO_SIDED, ROW_FACTOR, ROW_FLAGS, ROW_HAS_N, ROW_KD, ROW_N, ROW_NG,
+    ROW_NG_OFF, ROW_SHAPE, ROW_SIZE, ROW_UV,
 };
 use super::wavefront::{Row, ScatterIn, ScatterOut, VertexLanes, W, scatter_lanes};
 use crate::accel::packet::{PacketHits, RayPacket};
@@ -221,7 +221,6 @@ pub(super) fn vertices(
 #[inline]
 pub(super) fn deposit_values(
     rows: &[Row],
-    factor: &[f64],
     prim: &[u32; W],
     uv: &[[f32; W]; 2],
     beta: &[[f32; W]; 3],
@@ -255,9 +254,15 @@ pub(super) fn deposit_values(
     let magic = _mm256_set1_pd(6_755_399_441_055_744.0); // 1.5·2⁵²
     let sign = _mm256_set1_pd(-0.0);
     let half = _mm256_set1_pd(0.5);
-    for half_lanes in 0..2 {
-        let f = |l: usize| factor[prim[4 * half_lanes + l] as usize];
-        let f = _mm256_setr_pd(f(0), f(1), f(2), f(3));
+    // the f64 factors: the low and high halves of lanes 0, 1 | 4, 5 and 2, 3 | 6, 7
+    // interleaved, then lanes 0–3 and 4–7
+    let (f_lo, f_hi) = (field(ROW_FACTOR), field(ROW_FACTOR + 1));
+    let (a, b) = (_mm256_unpacklo_ps(f_lo, f_hi), _mm256_unpackhi_ps(f_lo, f_hi));
+    let factors = [
+        _mm256_castps_pd(_mm256_permute2f128_ps::<0x20>(a, b)),
+        _mm256_castps_pd(_mm256_permute2f128_ps::<0x31>(a, b)),
+    ];
+    for (half_lanes, &f) in factors.iter().enumerate() {
         for (c, beta_c) in beta.iter().enumerate() {
             // SAFETY: 4 floats of an 8-float array.
             let b = unsafe { _mm_loadu_ps(beta_c.as_ptr().add(4 * half_lanes)) };

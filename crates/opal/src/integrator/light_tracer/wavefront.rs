@@ -199,18 +199,23 @@ pub(super) const ROW_HAS_N: usize = 25;
 pub(super) const ROW_SIZE: usize = 26;
 /// The shape (bits of an `i32`) of a triangle whose hits deposit (`factor > 0`), else −1.
 pub(super) const ROW_SHAPE: usize = 28;
+/// The triangle's shape (bits of a `u32`), for its bitmap ([`LambertTable::tex`]).
+pub(super) const ROW_TEX: usize = 29;
+/// The deposit factor [`Prim::factor`] (the bits of an `f64`, low half first; 8-byte aligned):
+/// read from the row, which the deposit loads anyway, instead of from a table of its own
+/// (a second cache miss per hit in scenes of many triangles).
+pub(super) const ROW_FACTOR: usize = 30;
 /// Bits of [`ROW_FLAGS`]: two-sided material, bitmap reflectance.
 pub(super) const FLAG_TWO_SIDED: u32 = 1;
 pub(super) const FLAG_BITMAP: u32 = 2;
 
-/// The wavefront's triangle table: rows, the bitmap of each triangle with a bitmap
+/// The wavefront's triangle table: rows, the bitmap of each shape with a bitmap
 /// reflectance, and whether any triangle has corner normals.
 pub(super) struct LambertTable<'a> {
     rows: Vec<Row>,
+    /// Per shape (a row's [`ROW_TEX`]): its bitmap reflectance, if any.
     tex: Vec<Option<&'a Texture>>,
     any_normals: bool,
-    /// Deposit factors ([`Prim::factor`]).
-    factor: Vec<f64>,
     /// Whether every map is small enough for [`avx::deposit_values`] (sizes exact in f32,
     /// `3·w·h` in i32); otherwise every deposit takes [`deposit`].
     vector_deposits: bool,
@@ -223,7 +228,7 @@ impl<'a> LambertTable<'a> {
     pub(super) fn new(scene: &Scene, prims: &[Prim<'a>]) -> Option<LambertTable<'a>> {
         let flag = |b: bool| f32::from_bits(if b { u32::MAX } else { 0 });
         let mut rows = Vec::with_capacity(prims.len());
-        let mut tex = Vec::with_capacity(prims.len());
+        let mut tex = vec![None; scene.shapes.len()];
         for p in prims {
             let Mat::Diffuse { tex: t, two_sided } = p.mat else { return None };
             let mut r = [0.0f32; 32];
@@ -246,17 +251,21 @@ impl<'a> LambertTable<'a> {
             r[ROW_SIZE] = p.width as f32;
             r[ROW_SIZE + 1] = p.height as f32;
             r[ROW_SHAPE] = f32::from_bits(if p.factor > 0.0 { p.shape } else { u32::MAX });
+            r[ROW_TEX] = f32::from_bits(p.shape);
+            let f = p.factor.to_bits();
+            r[ROW_FACTOR] = f32::from_bits(f as u32);
+            r[ROW_FACTOR + 1] = f32::from_bits((f >> 32) as u32);
             rows.push(Row(r));
-            tex.push(p.kd_pi.is_none().then_some(t));
+            // (a shape's triangles share its material)
+            tex[p.shape as usize] = p.kd_pi.is_none().then_some(t);
         }
         let any_normals = prims.iter().any(|p| p.normals.is_some());
-        let factor = prims.iter().map(|p| p.factor).collect();
         let vector_deposits = prims.iter().all(|p| {
             p.width <= 1 << 16
                 && p.height <= 1 << 16
                 && 3 * p.width as u64 * p.height as u64 <= i32::MAX as u64
         });
-        Some(LambertTable { rows, tex, any_normals, factor, vector_deposits, lights: light_rows(scene) })
+        Some(LambertTable { rows, tex, any_normals, vector_deposits, lights: light_rows(scene) })
     }
 }
 
@@ -491,7 +500,7 @@ impl Wavefront {
                 let front = alive & v.front;
                 if front != 0 {
                     let dv = if tab.vector_deposits {
-                        avx::deposit_values(rows, &tab.factor, &prim, &v.uv, &ln.beta)
+                        avx::deposit_values(rows, &prim, &v.uv, &ln.beta)
                     } else {
                         DepositLanes { index: [0; W], value: [[0; W]; 3], small: 0, shape: [0; W] }
                     };
@@ -524,7 +533,8 @@ impl Wavefront {
                 ln.kd_pi = v.kd_pi;
                 ln.bitmap = alive & v.bitmap;
                 for l in lanes_of(ln.bitmap) {
-                    let tex = tab.tex[prim[l] as usize].expect("bitmap rows have a texture");
+                    let shape = rows[prim[l] as usize].0[ROW_TEX].to_bits();
+                    let tex = tab.tex[shape as usize].expect("bitmap rows have a texture");
                     let uv = Vec2::new(v.uv[0][l], v.uv[1][l]);
                     ln.tex[l] = Some(tex);
                     ln.uv[l] = uv;
