@@ -37,6 +37,7 @@ struct Walker {
 
 impl Walker {
     #[target_feature(enable = "avx2")]
+    #[inline]
     fn new(ray: Ray) -> Walker {
         let inv_s = [1.0 / ray.d.x, 1.0 / ray.d.y, 1.0 / ray.d.z];
         Walker {
