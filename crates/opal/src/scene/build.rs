@@ -63,6 +63,9 @@ pub struct Scene {
     accel: Accel,
     prim_shape: Vec<u32>,
     prim_light: Vec<u32>,
+    /// Unit geometric normal of each triangle (as [`Scene::interaction`] computed it per hit:
+    /// the same bits, without loading the three corners).
+    prim_ng: Vec<Vec3>,
     light_sampler: Option<LightSampler>,
     bounds: (Vec3, Vec3),
 }
@@ -75,6 +78,7 @@ impl Scene {
         let mut tris = Vec::new();
         let mut prim_shape = Vec::new();
         let mut prim_light = Vec::new();
+        let mut prim_ng = Vec::new();
         let mut lights = Vec::new();
         let mut shapes = Vec::new();
         let mut lo = Vec3::splat(f32::MAX);
@@ -121,6 +125,7 @@ impl Scene {
                 let prim = tris.len() as u32;
                 tris.push(tri);
                 prim_shape.push(si as u32);
+                prim_ng.push((tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize());
                 let mut light_idx = NO_LIGHT;
                 if let Some(le) = emission {
                     if let Some(tl) = TriangleLight::new(tri, le, prim) {
@@ -179,6 +184,7 @@ impl Scene {
             accel,
             prim_shape,
             prim_light,
+            prim_ng,
             light_sampler,
             bounds: (lo, hi),
         })
@@ -219,9 +225,8 @@ impl Scene {
         let local = (h.prim - shape.first_prim) as usize;
         let m = &shape.mesh;
         let [i0, i1, i2] = m.indices[local].map(|i| i as usize);
-        let (p0, p1, p2) = (m.positions[i0], m.positions[i1], m.positions[i2]);
         let b0 = 1.0 - h.b1 - h.b2;
-        let ng = (p1 - p0).cross(p2 - p0).normalize();
+        let ng = self.prim_ng[h.prim as usize];
         let ns = if m.normals.is_empty() {
             ng
         } else {
