@@ -26,8 +26,11 @@
 //!   = occluded; the same answer as [`Scene::occluded`]). Each pixel draws the same numbers in
 //!   the same order and adds the same terms in the same order as with [`li`], so the image is
 //!   **bit for bit** that of the scalar loop (checked with `cmp` of the pixels).
-//! * BVH scenes: `render_row_scalar`, a pixel at a time with [`li`] (the BVH's `intersect8`
-//!   is a loop over single rays, so packets bring nothing there yet).
+//! * BVH scenes: `render_row_scalar`, a pixel at a time with [`li`]. The BVH's `intersect8`
+//!   interleaves eight traversals (a large gain for incoherent rays on meshes beyond the caches),
+//!   but on the scanned-object room (82 k triangles, 256², 64 spp, depth 16) this row wavefront
+//!   measured 4.53–4.73 vs 4.16–4.36 CPU-s for single rays (3 interleaved runs each): camera
+//!   paths are coherent and the tree fits the cache.
 //!
 //! Tests: `tests/furnace.rs` (furnace: a closed Lambertian room of albedo ρ and radiance Le has
 //! radiance Le/(1−ρ) everywhere, also with lossless glass objects inside; agreement with Mitsuba 3 on the reference Cornell box by
