@@ -287,6 +287,14 @@ impl PacketAccel {
             _mm256_storeu_si256(h.prim.as_mut_ptr().cast(), best_i);
         }
         let mut zmask = _mm256_movemask_ps(zany) as u32;
+        // Inactive lanes (`tmax ≤ 0`, e.g. a default ray with NaN edge products) never hit: no
+        // scalar recomputation for them.
+        for l in 0..PACKET {
+            if zmask & (1 << l) != 0 && !(rays.tmax[l] > 0.0) {
+                zmask &= !(1 << l);
+                h.set(l, None);
+            }
+        }
         while zmask != 0 {
             // Rare: an exactly-zero edge function: the scalar test with its f64 recomputation.
             let l = zmask.trailing_zeros() as usize;
