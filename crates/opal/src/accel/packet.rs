@@ -290,7 +290,8 @@ impl PacketAccel {
         // Inactive lanes (`tmax ≤ 0`, e.g. a default ray with NaN edge products) never hit: no
         // scalar recomputation for them.
         for l in 0..PACKET {
-            if zmask & (1 << l) != 0 && !(rays.tmax[l] > 0.0) {
+            let active = rays.tmax[l] > 0.0; // false for NaN too
+            if zmask & (1 << l) != 0 && !active {
                 zmask &= !(1 << l);
                 h.set(l, None);
             }
