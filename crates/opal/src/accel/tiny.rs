@@ -55,9 +55,8 @@
 use super::Hit;
 pub use super::group::LANES;
 #[cfg(target_arch = "x86_64")]
-use super::group::{AvxRay, GroupAvx, group_avx};
-use super::group::{Group, ShearRay, closest_lane, group_portable};
-use super::triangle::TriRay;
+use super::group::{AvxRay, GroupAvx, group_avx, group_hit_avx};
+use super::group::{Group, ShearRay, group_hit_portable};
 use crate::geometry::Ray;
 use crate::math::Vec3;
 #[cfg(target_arch = "x86_64")]
@@ -103,31 +102,12 @@ impl TinyAccel {
         let mut tmax = ray.tmax;
         let mut best = None;
         for (gi, g) in self.groups.iter().enumerate() {
-            let h = group_portable(g, &r, tmax);
-            let base = gi * LANES;
-            if h.zero != 0 {
-                // Rare: an edge function is exactly zero somewhere: the scalar test with its f64
-                // recomputation, lane by lane in index order.
-                let tr = TriRay::new(ray);
-                for (i, tri) in self.tris.iter().enumerate().skip(base).take(LANES) {
-                    if let Some((t, b1, b2)) = tr.intersect(tri, tmax) {
-                        tmax = t;
-                        best = Some(Hit { t, prim: i as u32, b1, b2 });
-                        if ANY {
-                            return best;
-                        }
-                    }
+            if let Some((l, t, b1, b2)) = group_hit_portable::<ANY>(g, &r, ray, tmax) {
+                tmax = t;
+                best = Some(Hit { t, prim: (gi * LANES + l) as u32, b1, b2 });
+                if ANY {
+                    return best;
                 }
-                continue;
-            }
-            if h.hit == 0 {
-                continue;
-            }
-            let l = closest_lane(h.hit, &h.t);
-            tmax = h.t[l];
-            best = Some(Hit { t: h.t[l], prim: (base + l) as u32, b1: h.b1[l], b2: h.b2[l] });
-            if ANY {
-                return best;
             }
         }
         best
@@ -137,54 +117,16 @@ impl TinyAccel {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
     fn traverse_avx<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
-        use std::arch::x86_64::*;
         let ar = AvxRay::new(&ShearRay::new(ray));
-        let zero = _mm256_setzero_ps();
         let mut tmax = ray.tmax;
         let mut best = None;
         for (gi, g) in self.groups.iter().enumerate() {
-            let GroupAvx { zero: zv, mixed, t, v, w, inv } = group_avx(g, &ar);
-            let gt0 = |x| _mm256_cmp_ps::<_CMP_GT_OQ>(x, zero);
-            let zmask = _mm256_movemask_ps(zv);
-            // The hit mask is used only when no edge function is zero (`zmask == 0`); then
-            // "mixed signs" is "sign bits differ" and `TriRay`'s `det != 0`,
-            // `(tt > 0) == (det > 0)` follow from `t > 0` (see `closest_avx`).
-            let good = _mm256_and_ps(gt0(t), _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_set1_ps(tmax)));
-            // sign bit of `mixed` clear and `good`
-            let hit = (_mm256_movemask_ps(good) & !_mm256_movemask_ps(mixed)) as u32;
-            let base = gi * LANES;
-            if zmask != 0 {
-                // Rare: an edge function is exactly zero: the scalar test (f64 recomputation).
-                let tr = TriRay::new(ray);
-                for (i, tri) in self.tris.iter().enumerate().skip(base).take(LANES) {
-                    if let Some((t, b1, b2)) = tr.intersect(tri, tmax) {
-                        tmax = t;
-                        best = Some(Hit { t, prim: i as u32, b1, b2 });
-                        if ANY {
-                            return best;
-                        }
-                    }
+            if let Some((l, t, b1, b2)) = group_hit_avx::<ANY>(g, &ar, ray, tmax) {
+                tmax = t;
+                best = Some(Hit { t, prim: (gi * LANES + l) as u32, b1, b2 });
+                if ANY {
+                    return best;
                 }
-                continue;
-            }
-            if hit == 0 {
-                continue;
-            }
-            let mut ts = [0.0f32; LANES];
-            // SAFETY: `ts` holds 8 floats (unaligned store).
-            unsafe { _mm256_storeu_ps(ts.as_mut_ptr(), t) };
-            let l = closest_lane(hit, &ts);
-            let mut b1 = [0.0f32; LANES];
-            let mut b2 = [0.0f32; LANES];
-            // SAFETY: as above.
-            unsafe {
-                _mm256_storeu_ps(b1.as_mut_ptr(), _mm256_mul_ps(v, inv));
-                _mm256_storeu_ps(b2.as_mut_ptr(), _mm256_mul_ps(w, inv));
-            }
-            tmax = ts[l];
-            best = Some(Hit { t: ts[l], prim: (base + l) as u32, b1: b1[l], b2: b2[l] });
-            if ANY {
-                return best;
             }
         }
         best

@@ -4,7 +4,7 @@
 //!
 //! Tests: `super::tests::avx2_and_portable_traversals_agree_bit_for_bit`.
 
-use super::{BOX_FAR_SCALE, Bvh, Entry, LEAF, STACK, WIDTH, order_children};
+use super::{BOX_FAR_SCALE, Best, Bvh, Entry, LEAF, STACK, WIDTH, order_children, pop};
 use crate::accel::Hit;
 use crate::accel::group::{AvxRay, ShearRay, group_hit_avx};
 use crate::geometry::Ray;
@@ -68,9 +68,8 @@ impl Bvh {
         let scale = _mm256_set1_ps(BOX_FAR_SCALE);
         let ar = AvxRay::new(&ShearRay::new(ray));
         let mut tmax = ray.tmax;
-        // the closest hit so far: (group, lane, t, b1, b2); its triangle index is looked up at
-        // the end (one cache miss per ray rather than per candidate)
-        let mut best: Option<(usize, usize, f32, f32, f32)> = None;
+        // (its triangle index is looked up at the end: one cache miss per ray, not per candidate)
+        let mut best: Best = None;
         let mut stack = [MaybeUninit::<Entry>::uninit(); STACK];
         let mut sp = 0usize;
         let mut cur = 0u32;
@@ -126,17 +125,9 @@ impl Bvh {
                     continue;
                 }
             }
-            loop {
-                if sp == 0 {
-                    return best.map(|(g, l, t, b1, b2)| Hit { t, prim: self.leaves[g].prim[l], b1, b2 });
-                }
-                sp -= 1;
-                // SAFETY: entries below `sp` were written.
-                let e = unsafe { stack[sp].assume_init() };
-                if e.tnear <= tmax {
-                    cur = e.child;
-                    break;
-                }
+            match pop(&stack, &mut sp, tmax) {
+                Some(c) => cur = c,
+                None => return self.hit_of(best),
             }
         }
     }

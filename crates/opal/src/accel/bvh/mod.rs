@@ -182,6 +182,24 @@ struct Entry {
     tnear: f32,
 }
 
+/// The closest hit found so far by a traversal: (leaf, lane, t, b1, b2); the triangle index is
+/// looked up once at the end ([`Bvh::hit_of`]).
+type Best = Option<(usize, usize, f32, f32, f32)>;
+
+/// Pops the next stacked item still in range (`tnear ≤ tmax`); `None` when the stack is empty.
+#[inline(always)]
+fn pop(stack: &[MaybeUninit<Entry>], sp: &mut usize, tmax: f32) -> Option<u32> {
+    while *sp > 0 {
+        *sp -= 1;
+        // SAFETY: entries below `sp` were written.
+        let e = unsafe { stack[*sp].assume_init() };
+        if e.tnear <= tmax {
+            return Some(e.child);
+        }
+    }
+    None
+}
+
 /// Pushes the children of `mask` except the nearest onto `stack` (farthest deepest) and returns
 /// the nearest. Children are ordered by entry distance, then by reference (deterministic).
 #[inline(always)]
@@ -313,14 +331,19 @@ impl Bvh {
         self.nodes.len() * size_of::<Node8>() + self.leaves.len() * size_of::<Leaf>()
     }
 
+    /// The hit of a traversal's closest candidate.
+    #[inline(always)]
+    fn hit_of(&self, best: Best) -> Option<Hit> {
+        best.map(|(g, l, t, b1, b2)| Hit { t, prim: self.leaves[g].prim[l], b1, b2 })
+    }
+
     /// The portable traversal (lane loops); the AVX2 one does the same operations.
     #[inline(always)]
     fn traverse<const ANY: bool>(&self, ray: &Ray) -> Option<Hit> {
         let br = BoxRay::new(ray);
         let sr = ShearRay::new(ray);
         let mut tmax = ray.tmax;
-        // (group, lane, t, b1, b2) of the closest hit so far
-        let mut best: Option<(usize, usize, f32, f32, f32)> = None;
+        let mut best: Best = None;
         let mut stack = [MaybeUninit::<Entry>::uninit(); STACK];
         let mut sp = 0usize;
         let mut cur = 0u32;
@@ -359,18 +382,9 @@ impl Bvh {
                     continue;
                 }
             }
-            // Pop the next item still in range.
-            loop {
-                if sp == 0 {
-                    return best.map(|(g, l, t, b1, b2)| Hit { t, prim: self.leaves[g].prim[l], b1, b2 });
-                }
-                sp -= 1;
-                // SAFETY: entries below `sp` were written.
-                let e = unsafe { stack[sp].assume_init() };
-                if e.tnear <= tmax {
-                    cur = e.child;
-                    break;
-                }
+            match pop(&stack, &mut sp, tmax) {
+                Some(c) => cur = c,
+                None => return self.hit_of(best),
             }
         }
     }

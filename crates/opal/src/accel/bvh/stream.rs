@@ -12,8 +12,7 @@
 //! bit (tested: `super::tests::interleaved_packets_match_single_rays_bit_for_bit`).
 
 use super::avx::box8;
-use super::{BOX_FAR_SCALE, Bvh, Entry, LEAF, STACK, order_children};
-use crate::accel::Hit;
+use super::{BOX_FAR_SCALE, Best, Bvh, Entry, LEAF, STACK, order_children, pop};
 use crate::accel::group::{AvxRay, ShearRay, group_hit_avx};
 use crate::accel::packet::{PACKET, PacketHits, RayPacket};
 use crate::geometry::Ray;
@@ -28,8 +27,8 @@ struct Walker {
     near: [usize; 3],
     ar: AvxRay,
     tmax: f32,
-    /// (leaf, lane, t, b1, b2) of the closest hit so far.
-    best: Option<(usize, usize, f32, f32, f32)>,
+    /// The closest hit so far.
+    best: Best,
     /// The item to visit next.
     cur: u32,
     sp: usize,
@@ -80,23 +79,14 @@ impl Walker {
                 return true;
             }
         }
-        loop {
-            if self.sp == 0 {
-                return false;
+        match pop(stack, &mut self.sp, self.tmax) {
+            Some(c) => {
+                self.cur = c;
+                bvh.prefetch(c);
+                true
             }
-            self.sp -= 1;
-            // SAFETY: entries below `sp` were written.
-            let e = unsafe { stack[self.sp].assume_init() };
-            if e.tnear <= self.tmax {
-                self.cur = e.child;
-                bvh.prefetch(self.cur);
-                return true;
-            }
+            None => false,
         }
-    }
-
-    fn hit(&self, bvh: &Bvh) -> Option<Hit> {
-        self.best.map(|(g, l, t, b1, b2)| Hit { t, prim: bvh.leaves[g].prim[l], b1, b2 })
     }
 }
 
@@ -122,7 +112,7 @@ impl Bvh {
                 // SAFETY: lanes in `active` were initialised above.
                 let w = unsafe { walkers[l].assume_init_mut() };
                 if !w.step(self, &mut stacks[l]) {
-                    hits.set(l, w.hit(self));
+                    hits.set(l, self.hit_of(w.best));
                     active &= !(1 << l);
                 }
             }
