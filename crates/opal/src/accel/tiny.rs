@@ -75,25 +75,25 @@ pub struct TinyAccel {
     groups: Vec<Group>,
     /// AVX kernels (the instruction set detected once, [`crate::simd::isa`]).
     avx: bool,
-    /// The triangles as given (scalar fallback).
-    tris: Vec<[Vec3; 3]>,
+    /// Number of triangles.
+    len: usize,
 }
 
 impl TinyAccel {
     /// Wraps a triangle soup (any size works; it pays up to a few dozen triangles).
     pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
         let groups = tris.chunks(LANES).map(Group::new).collect();
-        TinyAccel { groups, avx: crate::simd::isa().avx2(), tris }
+        TinyAccel { groups, avx: crate::simd::isa().avx2(), len: tris.len() }
     }
 
     /// Number of triangles.
     pub fn len(&self) -> usize {
-        self.tris.len()
+        self.len
     }
 
     /// Whether there are no triangles.
     pub fn is_empty(&self) -> bool {
-        self.tris.is_empty()
+        self.len == 0
     }
 
     #[inline(always)]
