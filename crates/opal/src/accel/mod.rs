@@ -29,7 +29,7 @@ pub use triangle::{TriRay, intersect_triangle, offset_ray_origin, spawn_ray, spa
 
 use crate::geometry::Ray;
 use crate::math::Vec3;
-use packet::{PacketAccel, PacketHits, RayPacket};
+use packet::{PACKET, PacketAccel, PacketHits, RayPacket};
 
 /// The intersection API over the implementations (see the module docs).
 #[derive(Clone, Debug)]
@@ -100,6 +100,19 @@ impl Accel {
         match self {
             Accel::Tiny { packet, .. } => packet.intersect_lanes(rays),
             Accel::Bvh(b) => b.intersect8(rays),
+        }
+    }
+
+    /// Which of the eight rays of a packet are blocked before `tmax` (bit `l` = lane `l`;
+    /// lanes with `tmax ≤ 0` are inactive, bit clear): [`Accel::occluded`] per lane. The BVH
+    /// stops each lane's traversal at its first hit; the tiny structure tests every triangle.
+    pub fn occluded8(&self, rays: &RayPacket) -> u32 {
+        match self {
+            Accel::Tiny { packet, .. } => {
+                let h = packet.intersect_lanes(rays);
+                (0..PACKET).filter(|&l| h.prim[l] >= 0).fold(0, |m, l| m | 1 << l)
+            }
+            Accel::Bvh(b) => b.occluded8(rays),
         }
     }
 }

@@ -428,6 +428,18 @@ impl Bvh {
         }
         h
     }
+
+    /// Which of the eight rays of a packet hit a triangle with `0 < t < tmax` (bit `l` = lane
+    /// `l`; lanes with `tmax ≤ 0` are inactive, bit clear): [`Bvh::occluded`] per lane. With
+    /// AVX2 the traversals are interleaved and each ends at its lane's first hit.
+    pub fn occluded8(&self, rays: &RayPacket) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: the CPU supports AVX2 (detected when the BVH was built).
+            return unsafe { self.occluded8_avx2(rays) };
+        }
+        (0..PACKET).filter(|&l| rays.tmax[l] > 0.0 && self.occluded(&rays.ray(l))).fold(0, |m, l| m | 1 << l)
+    }
 }
 
 #[cfg(test)]

@@ -9,7 +9,8 @@
 //! other lanes' visits to arrive. Each lane performs exactly the operations of the single-ray
 //! traversal (`avx.rs`) in the same order — the same box test ([`super::avx::box8`]), the same
 //! ordering of children, the same leaf kernel — so every lane returns the single-ray hit, bit for
-//! bit (tested: `super::tests::interleaved_packets_match_single_rays_bit_for_bit`).
+//! bit (tested: `super::tests::interleaved_packets_match_single_rays_bit_for_bit`). The any-hit
+//! variant ([`Bvh::occluded8`]) stops a lane at its first hit, like [`Bvh::occluded`].
 
 use super::avx::box8;
 use super::{BOX_FAR_SCALE, Best, Bvh, Entry, LEAF, STACK, order_children, pop};
@@ -52,16 +53,24 @@ impl Walker {
         }
     }
 
-    /// Visits the current item and moves to the next one; `false` when the traversal is over.
+    /// Visits the current item and moves to the next one; `false` when the traversal is over
+    /// (with `any`, also at the first hit: `best` is then some hit, not the closest).
     #[target_feature(enable = "avx2")]
     #[inline]
-    fn step(&mut self, bvh: &Bvh, stack: &mut [MaybeUninit<Entry>; STACK]) -> bool {
+    fn step(&mut self, bvh: &Bvh, stack: &mut [MaybeUninit<Entry>; STACK], any: bool) -> bool {
         let cur = self.cur;
         if cur & LEAF != 0 {
             let g = (cur & !LEAF) as usize;
             // SAFETY: leaf references are built from `leaves` indices.
             let group = unsafe { &bvh.leaves.get_unchecked(g).tris };
-            if let Some((l, t, b1, b2)) = group_hit_avx::<false>(group, &self.ar, &self.ray, self.tmax) {
+            if any {
+                // any hit ends a shadow ray's traversal (barycentrics not computed)
+                if let Some((l, t, b1, b2)) = group_hit_avx::<true>(group, &self.ar, &self.ray, self.tmax) {
+                    self.best = Some((g, l, t, b1, b2));
+                    return false;
+                }
+            } else if let Some((l, t, b1, b2)) = group_hit_avx::<false>(group, &self.ar, &self.ray, self.tmax)
+            {
                 self.tmax = t;
                 self.best = Some((g, l, t, b1, b2));
             }
@@ -94,6 +103,21 @@ impl Bvh {
     /// Closest hits of the active lanes (`tmax > 0`) of `rays`, their traversals interleaved.
     #[target_feature(enable = "avx2")]
     pub(super) fn intersect8_avx2(&self, rays: &RayPacket) -> PacketHits {
+        self.walk8(rays, false)
+    }
+
+    /// Which active lanes (`tmax > 0`) of `rays` hit anything before `tmax` (bit `l` = lane
+    /// `l`), their traversals interleaved, each ending at its first hit.
+    #[target_feature(enable = "avx2")]
+    pub(super) fn occluded8_avx2(&self, rays: &RayPacket) -> u32 {
+        let hits = self.walk8(rays, true);
+        (0..PACKET).filter(|&l| hits.prim[l] >= 0).fold(0, |m, l| m | 1 << l)
+    }
+
+    /// The interleaved traversals: closest hits, or (`any`) some hit per lane. One compilation
+    /// for both (a generic one made two, and `Walker::new` / `step` went out of line).
+    #[target_feature(enable = "avx2")]
+    fn walk8(&self, rays: &RayPacket, any: bool) -> PacketHits {
         let mut hits = PacketHits::NONE;
         let mut walkers: [MaybeUninit<Walker>; PACKET] = [const { MaybeUninit::uninit() }; PACKET];
         let mut stacks = [[MaybeUninit::<Entry>::uninit(); STACK]; PACKET];
@@ -111,7 +135,7 @@ impl Bvh {
                 m &= m - 1;
                 // SAFETY: lanes in `active` were initialised above.
                 let w = unsafe { walkers[l].assume_init_mut() };
-                if !w.step(self, &mut stacks[l]) {
+                if !w.step(self, &mut stacks[l], any) {
                     hits.set(l, self.hit_of(w.best));
                     active &= !(1 << l);
                 }

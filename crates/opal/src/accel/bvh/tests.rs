@@ -154,7 +154,8 @@ fn packets_answer_like_single_rays() {
 }
 
 /// The interleaved eight-ray traversal returns, lane by lane, the single-ray hit bit for bit
-/// (mesh + soup, finite and infinite `tmax`, axis-parallel directions, inactive lanes).
+/// (mesh + soup, finite and infinite `tmax`, axis-parallel directions, inactive lanes); the
+/// any-hit streams (`occluded8`) answer `occluded` lane by lane.
 #[test]
 fn interleaved_packets_match_single_rays_bit_for_bit() {
     let bits = |h: Option<Hit>| h.map(|h| (h.prim, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()));
@@ -182,9 +183,13 @@ fn interleaved_packets_match_single_rays_bit_for_bit() {
                 *slot = (tmax > 0.0).then_some(r);
             }
             let h = b.intersect8(&rp);
+            let blocked = b.occluded8(&rp);
             for (l, r) in rays.iter().enumerate() {
                 let want = r.and_then(|r| b.intersect(&r));
                 assert_eq!(bits(h.hit(l)), bits(want), "packet {p} lane {l}");
+                let occ = r.is_some_and(|r| b.occluded(&r));
+                assert_eq!(blocked >> l & 1 == 1, occ, "any hit: packet {p} lane {l}");
+                assert_eq!(occ, want.is_some(), "any hit iff a closest hit: packet {p} lane {l}");
             }
         }
     }

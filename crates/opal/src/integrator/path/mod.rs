@@ -38,7 +38,6 @@
 
 use super::{mis_power, spawn_ray, spawn_ray_to};
 use crate::accel::Accel;
-use crate::accel::packet::{PACKET, RayPacket};
 use crate::bsdf::{Bxdf, TransportMode};
 use crate::geometry::Ray;
 use crate::image::Image;
@@ -47,6 +46,10 @@ use crate::sampling::Rng;
 use crate::scene::{Scene, SurfaceInteraction};
 use crate::spectrum::Spectrum;
 use rayon::prelude::*;
+use wavefront::Shading;
+
+mod wavefront;
+mod wide;
 
 /// Path-tracer settings.
 #[derive(Clone, Copy, Debug)]
@@ -109,6 +112,31 @@ struct Shadow {
     contrib: Spectrum,
 }
 
+/// The first part of a path vertex at the hit `si` of `ray`: counts the vertex (returns the
+/// new depth) and adds the emission found there, MIS-weighted against the previous vertex's
+/// BSDF sample. Shared by [`vertex`] and the wide wavefront (`wavefront`).
+#[inline]
+fn emission(scene: &Scene, s: &PathSettings, st: &mut PathState, ray: &Ray, si: &SurfaceInteraction) -> i32 {
+    st.depth += 1;
+    let depth = st.depth;
+    if let Some((li_idx, light)) = scene.light_at(si.prim) {
+        let wo = -ray.d;
+        let le = light.le(wo);
+        let hidden = depth == 1 && s.hide_emitters;
+        if !le.is_black() && !hidden {
+            let w = match st.prev {
+                None | Some((_, _, true)) => 1.0,
+                Some((pp, pdf_bsdf, false)) => {
+                    let pmf = scene.light_sampler().map_or(0.0, |ls| ls.pmf(li_idx));
+                    mis_power(pdf_bsdf, pmf * light.pdf_li(pp, si.p))
+                }
+            };
+            st.l += st.beta * le * w;
+        }
+    }
+    depth
+}
+
 /// One path vertex at the hit `si` of `ray`: adds the emission found there, then (unless the
 /// depth limit ends the path) draws the next-event sample and the BSDF sample. Returns the
 /// shadow ray whose `contrib` the caller adds to `st.l` if it is unoccluded (before the next
@@ -125,23 +153,8 @@ fn vertex(
 ) -> (Option<Shadow>, Option<Ray>) {
     let mode = TransportMode::Radiance;
     let sampler = scene.light_sampler();
-    st.depth += 1;
-    let depth = st.depth;
+    let depth = emission(scene, s, st, ray, si);
     let wo = -ray.d;
-    if let Some((li_idx, light)) = scene.light_at(si.prim) {
-        let le = light.le(wo);
-        let hidden = depth == 1 && s.hide_emitters;
-        if !le.is_black() && !hidden {
-            let w = match st.prev {
-                None | Some((_, _, true)) => 1.0,
-                Some((pp, pdf_bsdf, false)) => {
-                    let pmf = sampler.map_or(0.0, |ls| ls.pmf(li_idx));
-                    mis_power(pdf_bsdf, pmf * light.pdf_li(pp, si.p))
-                }
-            };
-            st.l += st.beta * le * w;
-        }
-    }
     if s.max_depth >= 0 && depth >= s.max_depth {
         return (None, None);
     }
@@ -285,122 +298,32 @@ impl Row {
     }
 }
 
-/// Gives the lanes of `packet` not in `active` the origin and direction of an active lane and
-/// `tmax = 0` (inactive). A default lane's zero direction would make every triangle test of the
-/// packet kernel degenerate and send the lane to its exact scalar fallback (all triangles, one
-/// by one), which costs more than the packet itself.
-fn fill_inactive(packet: &mut RayPacket, active: [bool; PACKET]) {
-    let Some(a) = active.iter().position(|&b| b) else { return };
-    let mut r = packet.ray(a);
-    r.tmax = 0.0;
-    for (k, &on) in active.iter().enumerate() {
-        if !on {
-            packet.set(k, &r);
+/// How [`render`] traces a row (all give the same image bit for bit).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum RowPlan {
+    /// [`render_row_scalar`].
+    Scalar,
+    /// [`wavefront::render_row`] with this shading.
+    Wavefront(Shading),
+}
+
+impl RowPlan {
+    /// The fastest measured plan for the scene: diffuse scenes lit by triangles take the
+    /// wavefront with the wide vertex; other tiny scenes the wavefront with the scalar vertex;
+    /// other scenes behind the BVH a path at a time.
+    fn choose(scene: &Scene) -> RowPlan {
+        let wide = wavefront::wide_shading(scene, wide::Kernel::detect());
+        match (scene.accel(), wide) {
+            (_, Some(sh)) => RowPlan::Wavefront(sh),
+            (Accel::Tiny { .. }, None) => RowPlan::Wavefront(Shading::Scalar),
+            (Accel::Bvh(_), None) => RowPlan::Scalar,
         }
     }
-}
 
-/// A pixel being rendered in one lane of [`render_row_wavefront`].
-struct Lane {
-    x: usize,
-    rng: Rng,
-    sums: PixelSums,
-    /// Samples started.
-    started: u32,
-    st: PathState,
-    ray: Ray,
-}
-
-/// One row rendered [`PACKET`] pixels at a time: lane `k` renders one pixel's samples one after
-/// the other with the pixel's own generator (so each pixel's numbers, and hence the image, are
-/// those of [`render_row_scalar`] bit for bit), and takes the row's next pixel when it is done.
-/// The lanes' rays go through [`Accel::intersect8`] together, then their shadow rays.
-fn render_row_wavefront(scene: &Scene, cam: usize, y: usize, s: &PathSettings, row: &mut Row) {
-    let camera = &scene.cameras[cam];
-    let w = camera.width;
-    let accel = scene.accel();
-    let mut next_x = 0usize;
-    let start_sample = |lane: &mut Lane| {
-        let p = Vec2::new(lane.x as f32 + lane.rng.next_f32(), y as f32 + lane.rng.next_f32());
-        lane.ray = camera.generate_ray(p);
-        lane.st = PathState::START;
-        lane.started += 1;
-    };
-    let take_pixel = |next_x: &mut usize| -> Option<Lane> {
-        if *next_x >= w || s.spp == 0 {
-            return None;
-        }
-        let x = *next_x;
-        *next_x += 1;
-        let mut lane = Lane {
-            x,
-            rng: Rng::new(s.seed, cam as u64, (y * w + x) as u64),
-            sums: PixelSums::default(),
-            started: 0,
-            st: PathState::START,
-            ray: Ray::new(Vec3::ZERO, Vec3::Z),
-        };
-        start_sample(&mut lane);
-        Some(lane)
-    };
-    let mut lanes: [Option<Lane>; PACKET] = std::array::from_fn(|_| take_pixel(&mut next_x));
-    loop {
-        let mut packet = RayPacket::default();
-        let mut active = [false; PACKET];
-        for (k, lane) in lanes.iter().enumerate() {
-            if let Some(lane) = lane {
-                packet.set(k, &lane.ray);
-                active[k] = true;
-            }
-        }
-        if !active.contains(&true) {
-            break;
-        }
-        fill_inactive(&mut packet, active);
-        let hits = accel.intersect8(&packet);
-        let mut shadows = RayPacket::default();
-        let mut pending: [Option<Spectrum>; PACKET] = [None; PACKET];
-        let mut ended = [false; PACKET];
-        for (k, slot) in lanes.iter_mut().enumerate() {
-            let Some(lane) = slot else { continue };
-            let Some(hit) = hits.hit(k) else {
-                ended[k] = true;
-                continue;
-            };
-            let si = scene.interaction(&lane.ray, &hit);
-            let (shadow, next) = vertex(scene, s, &mut lane.st, &lane.ray, &si, &mut lane.rng);
-            if let Some(sh) = shadow {
-                shadows.set(k, &sh.ray);
-                pending[k] = Some(sh.contrib);
-            }
-            match next {
-                Some(r) => lane.ray = r,
-                None => ended[k] = true,
-            }
-        }
-        if pending.iter().any(Option::is_some) {
-            fill_inactive(&mut shadows, pending.map(|c| c.is_some()));
-            let blocked = accel.intersect8(&shadows);
-            for (k, c) in pending.iter().enumerate() {
-                if let (Some(c), Some(lane)) = (c, &mut lanes[k]) {
-                    if blocked.prim[k] < 0 {
-                        lane.st.l += *c;
-                    }
-                }
-            }
-        }
-        for (k, slot) in lanes.iter_mut().enumerate() {
-            if !ended[k] {
-                continue;
-            }
-            let Some(lane) = slot else { continue };
-            lane.sums.add(lane.st.l);
-            if lane.started < s.spp {
-                start_sample(lane);
-            } else {
-                row.put(lane.x, &lane.sums);
-                *slot = take_pixel(&mut next_x);
-            }
+    fn render(self, scene: &Scene, cam: usize, y: usize, s: &PathSettings, row: &mut Row) {
+        match self {
+            RowPlan::Scalar => render_row_scalar(scene, cam, y, s, row),
+            RowPlan::Wavefront(sh) => wavefront::render_row(scene, cam, y, s, row, sh),
         }
     }
 }
@@ -409,16 +332,12 @@ fn render_row_wavefront(scene: &Scene, cam: usize, y: usize, s: &PathSettings, r
 pub fn render(scene: &Scene, cam: usize, s: &PathSettings, on_row: &(dyn Fn() + Sync)) -> RenderOutput {
     let camera = &scene.cameras[cam];
     let (w, h) = (camera.width, camera.height);
-    let packets = matches!(scene.accel(), Accel::Tiny { .. });
+    let plan = RowPlan::choose(scene);
     let rows: Vec<Row> = (0..h)
         .into_par_iter()
         .map(|y| {
             let mut row = Row::new(w);
-            if packets {
-                render_row_wavefront(scene, cam, y, s, &mut row);
-            } else {
-                render_row_scalar(scene, cam, y, s, &mut row);
-            }
+            plan.render(scene, cam, y, s, &mut row);
             on_row();
             row
         })
@@ -435,35 +354,4 @@ pub fn render(scene: &Scene, cam: usize, s: &PathSettings, on_row: &(dyn Fn() + 
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::scene::load::load_mitsuba_xml;
-    use std::path::Path;
-
-    /// The wavefront row (eight pixels in packet lanes, batched shadow rays) gives the scalar
-    /// row's pixels bit for bit, with and without a depth limit and Russian roulette, for a
-    /// spp that does not divide the lanes evenly.
-    #[test]
-    fn wavefront_rows_equal_scalar_rows_bit_for_bit() {
-        let xml = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cbox/scene.xml");
-        let scene = Scene::build(&load_mitsuba_xml(&xml, &[]).unwrap()).unwrap();
-        assert!(matches!(scene.accel(), Accel::Tiny { .. }), "the Cornell box is a tiny scene");
-        let w = scene.cameras[0].width;
-        for (spp, max_depth, rr_depth) in [(3, 8, 5), (5, -1, 2), (2, 2, 5)] {
-            let s = PathSettings { spp, max_depth, rr_depth, hide_emitters: false, seed: 7 };
-            let mut lit = false;
-            for y in [0, w / 3, w / 2 + 1] {
-                let (mut a, mut b) = (Row::new(w), Row::new(w));
-                render_row_scalar(&scene, 0, y, &s, &mut a);
-                render_row_wavefront(&scene, 0, y, &s, &mut b);
-                let bits = |r: &Row| {
-                    r.mean.iter().chain(&r.err).flat_map(|p| p.0.map(f32::to_bits)).collect::<Vec<_>>()
-                };
-                assert_eq!(bits(&a), bits(&b), "row {y}, spp {spp}, max depth {max_depth}");
-                assert_eq!(a.bad, b.bad);
-                lit |= a.mean.iter().any(|p| !p.is_black());
-            }
-            assert!(lit, "some tested row is lit (spp {spp}, max depth {max_depth})");
-        }
-    }
-}
+mod tests;
