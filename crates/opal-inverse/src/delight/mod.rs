@@ -98,6 +98,24 @@ pub struct DelightSettings {
     pub smooth: Option<usize>,
     /// Multi-view super-resolved luminance maps ([`superres`]); `None` = back-projection only.
     pub superres: Option<superres::SrSettings>,
+    /// Debug and error-analysis outputs (all off by default).
+    pub debug: DebugSettings,
+}
+
+/// Debug and error-analysis outputs of [`delight`]; [`Default`] = all off (no effect on the
+/// results).
+#[derive(Clone, Debug, Default)]
+pub struct DebugSettings {
+    /// Log per object and iteration the mean observed `L`, `Ed`, `Ei`, `Kd` and the number of
+    /// clamped texels.
+    pub print: bool,
+    /// Write per object the luminance map, observed mask, direct and indirect irradiance and
+    /// albedo as EXR files (`<id>_final_<what>.exr`) into this directory at the end.
+    pub dump_dir: Option<std::path::PathBuf>,
+    /// Error analysis: an irradiance map (EXR on the atlas grid, e.g. the true one) used as the
+    /// shading of the super-resolution instead of the estimate `Ed + Ei` (ignored when it cannot
+    /// be read or its size differs from the atlas).
+    pub shading: Option<std::path::PathBuf>,
 }
 
 impl Default for DelightSettings {
@@ -116,6 +134,7 @@ impl Default for DelightSettings {
             update: UpdateRule::FixedPoint,
             smooth: None,
             superres: Some(superres::SrSettings::default()),
+            debug: DebugSettings::default(),
         }
     }
 }
@@ -730,13 +749,13 @@ pub fn delight(
                 let k = scene.shapes.iter().position(|sh| &sh.id == n).ok_or_else(|| {
                     let ids: Vec<&str> = scene.shapes.iter().map(|s| s.id.as_str()).collect();
                     Error::invalid(
-                        format!("--objects {n}"),
+                        format!("selected object {n}"),
                         format!("no shape with that id (have: {})", ids.join(", ")),
                     )
                 })?;
                 if scene.shapes[k].emission.is_some() {
                     return Err(Error::invalid(
-                        format!("--objects {n}"),
+                        format!("selected object {n}"),
                         "is an emitter; only non-emitting shapes can be recovered",
                     ));
                 }
@@ -1025,7 +1044,7 @@ pub fn delight(
                     }
                 }
                 o.clamped = update_kd(o);
-                if std::env::var("OPAL_DELIGHT_DEBUG").is_ok() {
+                if s.debug.print {
                     let mut acc = [[0f64; 3]; 4];
                     let mut cnt = 0f64;
                     for i in 0..n {
@@ -1084,9 +1103,9 @@ pub fn delight(
                             .zip(&ei)
                             .map(|(d, i)| luminance(std::array::from_fn(|c| d[c] + i[c])))
                             .collect();
-                    if let Ok(p) = std::env::var("OPAL_SR_SHADING") {
+                    if let Some(p) = &s.debug.shading {
                         // error analysis: a given irradiance map (e.g. the true one) instead
-                        if let Ok(img) = opal::image::read::read_image(std::path::Path::new(&p))
+                        if let Ok(img) = opal::image::read::read_image(p)
                             && img.data.len() == shading.len()
                         {
                             shading = img.data.iter().map(|v| luminance(v.0)).collect();
@@ -1148,7 +1167,7 @@ pub fn delight(
             break;
         }
     }
-    debug_dump(&objects, "final");
+    debug_dump(&objects, "final", s.debug.dump_dir.as_deref());
     timings.push("iterations", t_it.elapsed());
     timings.push("light_tracing", (lt_wall, lt_cpu));
     timings.push("iteration_post", (post_wall, post_cpu));
@@ -1171,12 +1190,11 @@ fn finish_luminance(o: &mut ObjectResult) -> usize {
     inpaint::inpaint(&mut o.l, &o.observed, &covered_mask, &chart, w, h, (w / 16).max(4))
 }
 
-/// Debug dump (`OPAL_DELIGHT_DUMP=DIR`): per object the luminance map, observed mask, direct and
-/// indirect irradiance and albedo as EXR files (`<id>_<what>.exr`), for error analysis.
-fn debug_dump(objects: &[ObjectResult], tag: &str) {
-    let Ok(dir) = std::env::var("OPAL_DELIGHT_DUMP") else { return };
-    let dir = std::path::PathBuf::from(dir);
-    let _ = std::fs::create_dir_all(&dir);
+/// Debug dump ([`DebugSettings::dump_dir`]): per object the luminance map, observed mask, direct
+/// and indirect irradiance and albedo as EXR files (`<id>_<tag>_<what>.exr`), for error analysis.
+fn debug_dump(objects: &[ObjectResult], tag: &str, dir: Option<&std::path::Path>) {
+    let Some(dir) = dir else { return };
+    let _ = std::fs::create_dir_all(dir);
     for o in objects {
         let (w, h) = (o.atlas.width, o.atlas.height);
         let obs: Vec<[f32; 3]> = o.observed.iter().map(|&b| [b as u8 as f32; 3]).collect();
