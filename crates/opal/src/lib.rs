@@ -7,7 +7,7 @@
 //!
 //! Modules:
 //! * [`math`] — vectors (glam), orthonormal frames, reflection/refraction, Fresnel.
-//! * [`spectrum`] — the RGB [`Spectrum`](spectrum::Spectrum) newtype every colour goes through.
+//! * [`spectrum`] — the RGB [`Spectrum`] newtype every colour goes through.
 //! * [`sampling`] — counter-based random numbers and warping functions with their pdfs.
 //! * [`bsdf`] — the [`Bxdf`](bsdf::Bxdf) contract, [`TransportMode`](bsdf::TransportMode) and models.
 //! * [`fastmath`] — fast f32 polynomial sincos/exp/ln/erf/erfinv and Fresnel for hot loops.

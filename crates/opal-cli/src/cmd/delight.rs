@@ -199,7 +199,10 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     }
     let superres = match a.luminance.as_str() {
         "superres" => {
-            let mut sr = opal_inverse::delight::superres::SrSettings::default();
+            let mut sr = opal_inverse::delight::superres::SrSettings {
+                diagnostics: sr_diagnostics_from_env(),
+                ..Default::default()
+            };
             if let Some(l) = a.tv_lambda {
                 if !(l.is_finite() && l >= 0.0) {
                     bail!("--tv-lambda must be a finite number ≥ 0, got {l}");
@@ -227,10 +230,36 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         keep_uvs: !a.unwrap_all,
         update,
         superres,
+        debug: debug_from_env(),
         ..Default::default()
     };
     let r = delight(&desc, &views, &settings, log)?;
     write_outputs(a, &desc, &views, &r, &vwarn, log)
+}
+
+/// Debug outputs of the de-lighting from the environment (error-analysis hooks of
+/// `bench/scripts/delight_psnr_budget.py`): `OPAL_DELIGHT_DEBUG` (set: per-object means per
+/// iteration in the log), `OPAL_DELIGHT_DUMP=DIR` (final maps as EXR), `OPAL_SR_SHADING=E.exr`
+/// (given shading of the super-resolution).
+fn debug_from_env() -> opal_inverse::delight::DebugSettings {
+    opal_inverse::delight::DebugSettings {
+        print: std::env::var_os("OPAL_DELIGHT_DEBUG").is_some(),
+        dump_dir: std::env::var_os("OPAL_DELIGHT_DUMP").map(PathBuf::from),
+        shading: std::env::var_os("OPAL_SR_SHADING").map(PathBuf::from),
+    }
+}
+
+/// Error-analysis hooks of the super-resolution from the environment: `OPAL_SR_TRUTH=B.exr`
+/// with `OPAL_SR_DIAG=DIR`, `OPAL_SR_SYNTH=MODE`, `OPAL_SR_SYNTH_SS=N`, `OPAL_SR_TRACE` (see
+/// `opal_inverse::delight::superres::SrDiagnostics`).
+fn sr_diagnostics_from_env() -> opal_inverse::delight::superres::SrDiagnostics {
+    opal_inverse::delight::superres::SrDiagnostics {
+        truth: std::env::var_os("OPAL_SR_TRUTH").map(PathBuf::from),
+        residual_dir: std::env::var_os("OPAL_SR_DIAG").map(PathBuf::from),
+        synth: std::env::var("OPAL_SR_SYNTH").ok(),
+        synth_subsamples: std::env::var("OPAL_SR_SYNTH_SS").ok().and_then(|x| x.parse().ok()).unwrap_or(0),
+        trace: std::env::var_os("OPAL_SR_TRACE").is_some(),
+    }
 }
 
 fn write_outputs(

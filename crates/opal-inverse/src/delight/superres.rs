@@ -37,14 +37,14 @@
 //! a chart seam. A texel counts as observed when the pixels covering it give it a total weight ≥
 //! [`SrSettings::min_weight`].
 //!
-//! Error analysis hooks (environment, for `bench/scripts/delight_psnr_budget.py`):
-//! `OPAL_SR_TRUTH=B.exr` (a radiance map on the atlas grid) with `OPAL_SR_DIAG=DIR` prints per
+//! Error analysis hooks ([`SrDiagnostics`], for `bench/scripts/delight_psnr_budget.py`; all off
+//! by default): a truth radiance map on the atlas grid with a residual directory prints per
 //! view the residual of the operator applied to it against the photo (χ² against
-//! `<view>_stderr.exr` when present) and writes residual images; `OPAL_SR_SYNTH` replaces the
+//! `<view>_stderr.exr` when present) and writes residual images; `synth` replaces the
 //! photos by that map through the operator plus noise: `stderr` (Gaussian, the photo's standard
 //! error), `stderrcorr` (channels correlated ρ = 0.7), a relative level (`0.02`), `shuffle` /
 //! `relshuffle` (the real residuals permuted), `clipK` (the real photo with its residuals
-//! clipped at K standard errors); `OPAL_SR_SYNTH_SS=N` generates with N×N sub-pixel rays.
+//! clipped at K standard errors); `synth_subsamples = N` generates with N×N sub-pixel rays.
 //!
 //! References: Rudin, Osher, Fatemi 1992 (TV); Geman & Reynolds 1992 / Nikolova 2005
 //! (non-convex edge-preserving priors, IRLS); the multi-view super-resolution formulation of
@@ -84,6 +84,28 @@ pub struct SrSettings {
     pub cg_tolerance: f32,
     /// Minimum total pixel weight for a texel to count as observed.
     pub min_weight: f32,
+    /// Error-analysis hooks (all off by default; no effect on the results unless `synth` is set).
+    pub diagnostics: SrDiagnostics,
+}
+
+/// Error-analysis hooks of the super-resolution (see the module documentation); [`Default`] =
+/// all off.
+#[derive(Clone, Debug, Default)]
+pub struct SrDiagnostics {
+    /// A radiance map (EXR on the atlas grid, e.g. the true one) whose operator residual against
+    /// each photo is printed; only with [`SrDiagnostics::residual_dir`].
+    pub truth: Option<std::path::PathBuf>,
+    /// Directory of the per-view residual images (`<view>_res.exr`, `<view>_z.exr`); only with
+    /// [`SrDiagnostics::truth`].
+    pub residual_dir: Option<std::path::PathBuf>,
+    /// Replace the photos by the truth through the operator plus noise (`stderr`, `stderrcorr`,
+    /// a relative level such as `0.02`, `shuffle`, `relshuffle`, `clipK`); only with `truth` and
+    /// `residual_dir`.
+    pub synth: Option<String>,
+    /// Sub-pixel rays per axis of the synthetic photos (0 = those of the solve).
+    pub synth_subsamples: u32,
+    /// Print the problem size and the conjugate-gradient residuals.
+    pub trace: bool,
 }
 
 impl Default for SrSettings {
@@ -97,6 +119,7 @@ impl Default for SrSettings {
             cg_iters: 60,
             cg_tolerance: 0.0,
             min_weight: 0.25,
+            diagnostics: SrDiagnostics::default(),
         }
     }
 }
@@ -242,12 +265,18 @@ fn view_rows(scene: &Scene, shape: u32, a: &Atlas, view: &View, pure: &PureBuffe
         .collect()
 }
 
-/// Diagnostic (`OPAL_SR_TRUTH=B.exr`, `OPAL_SR_DIAG=DIR`): residual of the observation operator
-/// applied to a given radiance map against the photo, per view, normalised by the photo's
-/// standard error (`<view>_stderr.exr` next to the image, when present).
-fn diag_residual(v: &View, rows: &mut [Row], a: &Atlas, fine: &std::collections::HashMap<u32, &Row>) {
-    let (Ok(tp), Ok(dir)) = (std::env::var("OPAL_SR_TRUTH"), std::env::var("OPAL_SR_DIAG")) else { return };
-    let Ok(b) = opal::image::read::read_image(std::path::Path::new(&tp)) else { return };
+/// Diagnostic ([`SrDiagnostics::truth`], [`SrDiagnostics::residual_dir`]): residual of the
+/// observation operator applied to a given radiance map against the photo, per view, normalised
+/// by the photo's standard error (`<view>_stderr.exr` next to the image, when present).
+fn diag_residual(
+    v: &View,
+    rows: &mut [Row],
+    a: &Atlas,
+    fine: &std::collections::HashMap<u32, &Row>,
+    d: &SrDiagnostics,
+) {
+    let (Some(tp), Some(dir)) = (&d.truth, &d.residual_dir) else { return };
+    let Ok(b) = opal::image::read::read_image(tp) else { return };
     if b.width != a.width || b.height != a.height {
         return;
     }
@@ -257,7 +286,7 @@ fn diag_residual(v: &View, rows: &mut [Row], a: &Atlas, fine: &std::collections:
     let mut res = opal::image::Image::new(w, h);
     let mut nrm = opal::image::Image::new(w, h);
     let (mut chi, mut rel, mut n) = (0f64, 0f64, 0usize);
-    let synth = std::env::var("OPAL_SR_SYNTH").ok();
+    let synth = d.synth.clone();
     let mut rng = opal::sampling::Rng::new(77, v.name.len() as u64, rows.len() as u64);
     // "shuffle": the real residuals normalised by the standard error, permuted over the pixels
     // (keeps their distribution, drops any spatial structure); "relshuffle": the same with the
@@ -361,7 +390,7 @@ fn diag_residual(v: &View, rows: &mut [Row], a: &Atlas, fine: &std::collections:
         (rel / n.max(1) as f64).sqrt()
     );
     for (what, img) in [("res", &res), ("z", &nrm)] {
-        let p = std::path::Path::new(&dir).join(format!("{}_{what}.exr", v.name));
+        let p = dir.join(format!("{}_{what}.exr", v.name));
         if let Ok(f) = std::fs::File::create(p) {
             let _ = opal::image::write::write_exr(img, std::io::BufWriter::new(f));
         }
@@ -393,10 +422,10 @@ pub fn superres_luminance(
     let mut rows: Vec<Row> = Vec::new();
     for (v, pb) in views.iter().zip(pure) {
         let mut vr = view_rows(scene, shape, a, v, pb, s.subsamples.max(1));
-        let gen_ss: u32 = std::env::var("OPAL_SR_SYNTH_SS").ok().and_then(|x| x.parse().ok()).unwrap_or(0);
+        let gen_ss = s.diagnostics.synth_subsamples;
         let fine = if gen_ss > 0 { view_rows(scene, shape, a, v, pb, gen_ss) } else { Vec::new() };
         let fine: std::collections::HashMap<u32, &Row> = fine.iter().map(|r| (r.pix, r)).collect();
-        diag_residual(v, &mut vr, a, &fine);
+        diag_residual(v, &mut vr, a, &fine, &s.diagnostics);
         rows.extend(vr);
     }
     if rows.is_empty() {
@@ -565,7 +594,7 @@ pub fn superres_luminance(
     let mut ax = vec![[0f32; 3]; amat.rows()];
     let mut wts = vec![0f32; edges.len()];
     let mut diag = vec![0f32; m];
-    let trace = std::env::var("OPAL_SR_TRACE").is_ok();
+    let trace = s.diagnostics.trace;
     if trace {
         eprintln!(
             "superres shape {shape}: {} rows, {m} unknowns, {} nonzeros, {} edges",

@@ -1,6 +1,6 @@
 //! One-sided Lambertian reflector, Mitsuba's `diffuse`: f = ρ/π when both directions are on the
 //! front side (local z > 0), zero otherwise (black from the back). Cosine-weighted sampling.
-//! Parameters: reflectance ρ ∈ [0,1]³ (texture lookups happen before the Bxdf is built).
+//! Parameters: reflectance ρ ∈ \[0,1\]³ (texture lookups happen before the Bxdf is built).
 //! Tests: χ² of sampling vs pdf, reciprocity, directional albedo = ρ (below).
 
 use super::{BsdfSample, Bxdf, BxdfFlags, TransportMode};

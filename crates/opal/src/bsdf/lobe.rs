@@ -2,8 +2,8 @@
 //!
 //! Every one of these models is `f(wo, wi) = k_s · c(n) · L(t)` on the upper hemisphere
 //! (`wo.z > 0`, `wi.z > 0`, zero elsewhere), where `L` is a one-dimensional lobe of
-//! `t = cos γ`, `c(n)` a normalisation constant ([`Normalisation`]) and `k_s` the specular
-//! reflectance (RGB). Two *forms* say what γ is ([`LobeForm`]):
+//! `t = cos γ`, `c(n)` a normalisation constant (a [`NormExpr`](super::normexpr::NormExpr)) and
+//! `k_s` the specular reflectance (RGB). Two *forms* say what γ is ([`LobeForm`]):
 //! * **Phong form**: `t = wi · r` with `r = reflect(wo, n) = 2(wo·n)n − wo` (Phong's `V·R`);
 //! * **Blinn form**: `t = n · h` with `h = (wo + wi)/|wo + wi|` (Blinn's `N·H`).
 //!

@@ -14,7 +14,7 @@
 //! Reference: method page `docs/methods/001-energy-conserving-brdf.md` (seed 001).
 //! Tests (below and in `lyon.rs`): χ² sampling vs pdf (both forms, three `n`, four angles),
 //! consistency, reciprocity; the method page's R(n) table is reproduced in
-//! `opal-inverse/src/brdf_energy.rs` tests through the checker's quadrature.
+//! `opal-inverse/src/brdf_energy/tests.rs` through the checker's quadrature.
 
 use super::lobe::{LobeBxdf, LobeForm, impl_lobe_bxdf};
 use super::lyon::PowLobe;

@@ -1,7 +1,7 @@
 //! Numerically tabulated isotropic NDFs: the generalised Student-t family (tail exponent
 //! between GGX and Beckmann), a tabulated D(θm), a peak shift δ of any profile, and the hybrid
 //! (analytic base with a tabulated part over a θ range) of method A. Anything expressible as an
-//! isotropic profile D(θm) ≥ 0 becomes a full [`Ndf`](super::Ndf) here.
+//! isotropic profile D(θm) ≥ 0 becomes a full [`Ndf`] here.
 //!
 //! Profiles ([`Profile`], θ in radians):
 //! * `StudentT { alpha, gamma }`: slope density `P22(r) = (1 + r²/((γ−1)α²))^(−γ) / (π α²)`,

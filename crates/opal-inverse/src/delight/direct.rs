@@ -1,0 +1,342 @@
+//! Direct irradiance per texel (step 4 of the pipeline): light sampling with stratified
+//! positions and shadow rays, every light at every texel with the closed-form unoccluded
+//! irradiance of triangle lights as a control variate when the scene has at most
+//! [`MAX_LIGHTS_PER_TEXEL`] lights (power-proportional light choice otherwise), and an adaptive
+//! pilot that re-estimates only penumbra texels with the full sample count.
+//! Tests (below): the closed form against quadrature, and the adaptive estimate against the
+//! full one.
+
+// Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
+use super::atlas::{Atlas, NO_TRI};
+use opal::integrator::spawn_ray_to;
+use opal::math::{Vec2, Vec3};
+use opal::sampling::Rng;
+use opal::scene::Scene;
+use rayon::prelude::*;
+
+/// Direct irradiance per texel (step 4): `samples` light samples per texel (and per light when
+/// every light is sampled at every texel, see [`MAX_LIGHTS_PER_TEXEL`]).
+///
+/// With `pilot > 0` (and every light sampled with its closed-form control variate) the work is
+/// adaptive: every texel first takes `pilot` stratified samples per light; where each light is
+/// seen either by all of them or by none, the ratio estimator already gives the closed-form
+/// value (fully lit) or 0 (fully shadowed), which is what the full count gives there too. Only
+/// texels whose pilot saw a light partly occluded — the penumbrae — or none of whose pilot
+/// samples reached a light that is above the horizon, and their neighbours within
+/// [`PENUMBRA_DILATION`] texels (a penumbra's faint fringe, where a small occluded fraction can
+/// slip between the pilot's samples) are estimated again with the full `samples`, by exactly the
+/// estimator and random numbers of the non-adaptive run. Deterministic for a given seed.
+pub fn direct_irradiance(
+    scene: &Scene,
+    a: &Atlas,
+    samples: u32,
+    pilot: u32,
+    seed: u64,
+    stream: u64,
+) -> Vec<[f32; 3]> {
+    let n = a.width * a.height;
+    if scene.light_sampler().is_none() {
+        return vec![[0.0; 3]; n];
+    }
+    let side = (samples.max(1) as f32).sqrt().ceil() as u32;
+    let pilot_side = (pilot as f32).sqrt().ceil() as u32;
+    let per_light = scene.lights.len() <= MAX_LIGHTS_PER_TEXEL;
+    if !per_light || pilot == 0 || pilot_side >= side {
+        return (0..n)
+            .into_par_iter()
+            .map(|i| texel_direct(scene, a, i, side, &mut Rng::new(seed, stream, i as u64)).0)
+            .collect();
+    }
+    // pilot pass (its own random stream), then the penumbrae (dilated) at the full count
+    let first: Vec<([f32; 3], bool)> = (0..n)
+        .into_par_iter()
+        .map(|i| texel_direct(scene, a, i, pilot_side, &mut Rng::new(seed, stream ^ PILOT_STREAM, i as u64)))
+        .collect();
+    let mixed: Vec<bool> = first.iter().map(|f| f.1).collect();
+    let redo = dilate_mask(&mixed, a.width, a.height, PENUMBRA_DILATION);
+    first
+        .into_par_iter()
+        .enumerate()
+        .map(|(i, (e, _))| {
+            if redo[i] { texel_direct(scene, a, i, side, &mut Rng::new(seed, stream, i as u64)).0 } else { e }
+        })
+        .collect()
+}
+
+/// Texels around a penumbra texel found by the pilot of [`direct_irradiance`] that are estimated
+/// with the full sample count too (square neighbourhood of this radius).
+pub const PENUMBRA_DILATION: usize = 2;
+
+/// Stream offset of the pilot samples of [`direct_irradiance`].
+const PILOT_STREAM: u64 = 0x9170_7000;
+
+/// Square dilation (radius `r`) of a mask on a `w`×`h` grid (separable max).
+fn dilate_mask(m: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    let mut t = vec![false; m.len()];
+    for y in 0..h {
+        for x in 0..w {
+            t[y * w + x] = (x.saturating_sub(r)..(x + r + 1).min(w)).any(|xx| m[y * w + xx]);
+        }
+    }
+    let mut out = vec![false; m.len()];
+    for y in 0..h {
+        for x in 0..w {
+            out[y * w + x] = (y.saturating_sub(r)..(y + r + 1).min(h)).any(|yy| t[yy * w + x]);
+        }
+    }
+    out
+}
+
+/// Direct irradiance at texel `i` with `side`² stratified samples (per light when the scene has
+/// at most [`MAX_LIGHTS_PER_TEXEL`] lights), and whether the estimate is not exact: some light
+/// seen by part of its samples only, or a light without a closed-form irradiance, or lights
+/// chosen at random (many lights).
+fn texel_direct(scene: &Scene, a: &Atlas, i: usize, side: u32, rng: &mut Rng) -> ([f32; 3], bool) {
+    if a.texel_tri[i] == NO_TRI {
+        return ([0.0; 3], false);
+    }
+    let Some(ls) = scene.light_sampler() else { return ([0.0; 3], false) };
+    let n = side * side;
+    // few lights: every light gets its own stratified samples, and each triangle light's
+    // unoccluded irradiance is known in closed form, so only its visible fraction is estimated
+    // (ratio control variate: exact wherever the light is fully visible or fully hidden)
+    let per_light = scene.lights.len() <= MAX_LIGHTS_PER_TEXEL;
+    let (p, ng, ns) = (a.texel_p[i], a.texel_ng[i], a.texel_n[i]);
+    let mut e = [0f64; 3];
+    // one light sample: (weight Li·cos/pdf, visible?) or None below the horizon
+    let sample = |li: usize, u: Vec2, pmf: f32| -> Option<([f32; 3], bool)> {
+        let s = scene.lights[li].sample_li(p, u)?;
+        if s.pdf <= 0.0 || pmf <= 0.0 {
+            return None;
+        }
+        let cos = ns.dot(s.wi);
+        if cos <= 0.0 || ng.dot(s.wi) <= 0.0 {
+            return None;
+        }
+        let w = cos / (pmf * s.pdf);
+        let vis = !scene.occluded(&spawn_ray_to(p, ng, s.p, s.n));
+        Some((std::array::from_fn(|c| s.li[c] * w), vis))
+    };
+    let strat = |k: u32, rng: &mut Rng| {
+        let (sx, sy) = (k % side, k / side);
+        Vec2::new((sx as f32 + rng.next_f32()) / side as f32, (sy as f32 + rng.next_f32()) / side as f32)
+    };
+    if per_light {
+        let mut mixed = false;
+        for li in 0..scene.lights.len() {
+            let (mut all, mut vis) = ([0f64; 3], [0f64; 3]);
+            let (mut seen, mut hidden) = (false, false);
+            for k in 0..n {
+                let u = strat(k, rng);
+                if let Some((w, v)) = sample(li, u, 1.0) {
+                    if v {
+                        seen = true;
+                    } else {
+                        hidden = true;
+                    }
+                    for c in 0..3 {
+                        all[c] += w[c] as f64;
+                        if v {
+                            vis[c] += w[c] as f64;
+                        }
+                    }
+                }
+            }
+            let exact = match &scene.lights[li] {
+                opal::light::Light::Triangle(t) => triangle_irradiance(t, p, ns),
+                _ => None,
+            };
+            // not exact: a light partly occluded; no closed form; or a light above the horizon
+            // that no sample reached (it grazes the horizon: the full count may reach it)
+            let grazing = !seen && !hidden && exact.is_some_and(|ex| ex.iter().any(|&v| v > 0.0));
+            mixed |= (seen && (hidden || exact.is_none())) || grazing;
+            for c in 0..3 {
+                e[c] += match exact {
+                    Some(ex) if all[c] > 0.0 => ex[c] as f64 * vis[c] / all[c],
+                    _ => vis[c] / n as f64,
+                };
+            }
+        }
+        return (e.map(|v| v as f32), mixed);
+    }
+    for k in 0..n {
+        let u = strat(k, rng);
+        let (li, pmf, _) = ls.sample(rng.next_f32());
+        if let Some((w, true)) = sample(li, u, pmf) {
+            for c in 0..3 {
+                e[c] += w[c] as f64;
+            }
+        }
+    }
+    (e.map(|v| (v / n as f64) as f32), true)
+}
+
+/// Scenes with at most this many emitting triangles / point lights sample every light at every
+/// texel (with the closed-form control variate); larger ones choose lights by power.
+pub const MAX_LIGHTS_PER_TEXEL: usize = 16;
+
+/// Unoccluded irradiance (cosine-weighted about `n`) at `p` from a uniformly emitting,
+/// one-sided triangle light, in closed form (Lambert's polygon formula on the triangle clipped
+/// to the hemisphere of `n`): `E = L/2 · |Σ_k θ_k (n · γ_k)|`, θ_k the angle subtended by edge
+/// k, γ_k the unit normal of the plane through `p` and that edge. `None` for degenerate cases.
+fn triangle_irradiance(t: &opal::light::TriangleLight, p: Vec3, n: Vec3) -> Option<[f32; 3]> {
+    // the emitting side must face p
+    if t.n.dot(p - t.p[0]) <= 0.0 {
+        return Some([0.0; 3]);
+    }
+    // clip the triangle against the half-space n·(x − p) ≥ 0 (Sutherland–Hodgman)
+    let mut poly: Vec<Vec3> = Vec::with_capacity(4);
+    for k in 0..3 {
+        let (a, b) = (t.p[k] - p, t.p[(k + 1) % 3] - p);
+        let (da, db) = (n.dot(a) as f64, n.dot(b) as f64);
+        if da >= 0.0 {
+            poly.push(a);
+        }
+        if (da >= 0.0) != (db >= 0.0) {
+            let s = (da / (da - db)) as f32;
+            poly.push(a + (b - a) * s);
+        }
+    }
+    if poly.len() < 3 {
+        return Some([0.0; 3]);
+    }
+    let mut sum = 0f64;
+    for k in 0..poly.len() {
+        let (va, vb) = (poly[k].normalize_or_zero(), poly[(k + 1) % poly.len()].normalize_or_zero());
+        let c = va.cross(vb);
+        let len = c.length();
+        if len < 1e-12 {
+            continue;
+        }
+        let theta = (len as f64).atan2(va.dot(vb) as f64);
+        sum += theta * (n.dot(c / len)) as f64;
+    }
+    if !sum.is_finite() {
+        return None;
+    }
+    let f = (0.5 * sum.abs()) as f32;
+    Some(std::array::from_fn(|c| t.radiance[c] * f))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::delight::{atlas, luminance};
+    use opal::light::TriangleLight;
+
+    /// Closed-form unoccluded irradiance of a triangle light vs a brute-force quadrature over the
+    /// triangle (E = ∫ L cos θ_p cos θ_l / r² dA, 400² midpoint sub-triangles' centroids), for a
+    /// light fully above the horizon, one crossing it (clipped), one behind the receiver and one
+    /// facing away.
+    #[test]
+    fn triangle_irradiance_matches_quadrature() {
+        let quad = |t: &TriangleLight, p: Vec3, n: Vec3| -> f64 {
+            let m = 400;
+            let mut e = 0f64;
+            let (a, b, c) = (t.p[0], t.p[1], t.p[2]);
+            for i in 0..m {
+                for j in 0..m - i {
+                    for up in [false, true] {
+                        if up && j == m - i - 1 {
+                            continue;
+                        }
+                        let (u, v) = if up {
+                            ((i as f64 + 2.0 / 3.0) / m as f64, (j as f64 + 2.0 / 3.0) / m as f64)
+                        } else {
+                            ((i as f64 + 1.0 / 3.0) / m as f64, (j as f64 + 1.0 / 3.0) / m as f64)
+                        };
+                        let x = a + (b - a) * u as f32 + (c - a) * v as f32;
+                        let d = x - p;
+                        let r2 = d.length_squared() as f64;
+                        let w = d / d.length();
+                        let cp = (n.dot(w) as f64).max(0.0);
+                        let cl = (-t.n.dot(w) as f64).max(0.0);
+                        e += cp * cl / r2;
+                    }
+                }
+            }
+            e * t.area as f64 / (m * m) as f64
+        };
+        let light =
+            |p: [Vec3; 3]| TriangleLight::new(p, opal::spectrum::Spectrum([1.0, 2.0, 0.5]), 0).unwrap();
+        let p = Vec3::ZERO;
+        let n = Vec3::Z;
+        // above, facing down (CCW seen from below)
+        let t1 = light([Vec3::new(-0.5, -0.4, 1.0), Vec3::new(0.6, -0.3, 1.0), Vec3::new(0.1, 0.7, 1.2)]);
+        let t1 = if t1.n.z < 0.0 { t1 } else { light([t1.p[0], t1.p[2], t1.p[1]]) };
+        // crossing the horizon, tilted towards p
+        let t2 = light([Vec3::new(0.3, -0.5, -0.4), Vec3::new(0.4, 0.6, -0.3), Vec3::new(0.5, 0.0, 0.9)]);
+        let t2 = if t2.n.x < 0.0 { t2 } else { light([t2.p[0], t2.p[2], t2.p[1]]) };
+        for t in [&t1, &t2] {
+            let ex = triangle_irradiance(t, p, n).unwrap();
+            let q = quad(t, p, n);
+            assert!(q > 0.01, "{q}");
+            for c in 0..3 {
+                let want = q * t.radiance[c] as f64;
+                assert!(((ex[c] as f64) - want).abs() < 2e-3 * want, "channel {c}: {} vs {want}", ex[c]);
+            }
+        }
+        // behind the receiver's horizon entirely, and facing away
+        let t3 = light([Vec3::new(-0.5, -0.4, -1.0), Vec3::new(0.6, -0.3, -1.0), Vec3::new(0.1, 0.7, -1.2)]);
+        assert_eq!(triangle_irradiance(&t3, p, n).unwrap(), [0.0; 3]);
+        let t4 = light([t1.p[0], t1.p[2], t1.p[1]]);
+        assert_eq!(triangle_irradiance(&t4, p, n).unwrap(), [0.0; 3]);
+    }
+
+    /// The adaptive direct irradiance (16-sample pilot, 64 samples in the dilated penumbrae)
+    /// against the non-adaptive 64-sample estimator on the floor and the short box of the bundled
+    /// Cornell box: both see the boxes' penumbrae (which the adaptive one re-estimates with the
+    /// same random numbers, so bitwise equal there), and they differ on few texels — the faint
+    /// fringes the pilot missed — by little (measured on the reference resolutions with the
+    /// `direct_adaptive` example: ≤ 0.5 % of the texels, ≤ 3.5 % of the mean).
+    #[test]
+    fn adaptive_direct_matches_full_count() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox");
+        let mut desc = opal::scene::load::load_mitsuba_xml(&dir.join("scene.xml"), &[]).unwrap();
+        let mut atlases = Vec::new();
+        for id in ["floor", "short_box"] {
+            let k = desc.shapes.iter().position(|s| s.id == id).unwrap();
+            let a = atlas::build_atlas(&desc.shapes[k].mesh, 96, true).unwrap();
+            desc.shapes[k].mesh = a.mesh.clone();
+            atlases.push(a);
+        }
+        let scene = Scene::build(&desc).unwrap();
+        for a in &atlases {
+            let full = direct_irradiance(&scene, a, 64, 0, 5, 9);
+            let adapt = direct_irradiance(&scene, a, 64, 16, 5, 9);
+            let other = direct_irradiance(&scene, a, 64, 0, 6, 9);
+            let covered: Vec<usize> = (0..full.len()).filter(|&i| a.texel_tri[i] != NO_TRI).collect();
+            let mean = covered.iter().map(|&i| luminance(full[i]) as f64).sum::<f64>() / covered.len() as f64;
+            // penumbra texels: the full estimator is random there (two seeds differ)
+            let pen: Vec<usize> = covered.iter().copied().filter(|&i| full[i] != other[i]).collect();
+            assert!(pen.len() > covered.len() / 200, "{} penumbra texels of {}", pen.len(), covered.len());
+            let same_pen = pen.iter().filter(|&&i| full[i] == adapt[i]).count();
+            let differ_n = covered.iter().filter(|&&i| full[i] != adapt[i]).count();
+            // measured: floor 2951 of 2951 penumbra texels re-estimated, 0 texels differ; short
+            // box 239 of 243, 5 differ (its 96² charts make the penumbrae a few texels narrow)
+            println!(
+                "{} penumbra texels of {}, {same_pen} re-estimated; {differ_n} differ",
+                pen.len(),
+                covered.len()
+            );
+            assert!(
+                same_pen as f64 >= 0.95 * pen.len() as f64,
+                "{same_pen} of {} penumbra texels",
+                pen.len()
+            );
+            let differ: Vec<usize> = covered.iter().copied().filter(|&i| full[i] != adapt[i]).collect();
+            assert!(
+                differ.len() * 100 <= covered.len(),
+                "{} of {} texels differ",
+                differ.len(),
+                covered.len()
+            );
+            for &i in &differ {
+                let d = (luminance(full[i]) - luminance(adapt[i])).abs() as f64 / mean;
+                assert!(d < 0.1, "texel {i}: {:?} vs {:?}", full[i], adapt[i]);
+            }
+        }
+    }
+}

@@ -1,0 +1,635 @@
+//! The de-lighting pipeline ([`delight`], steps 1–6 of the module documentation of
+//! [`super`]): atlases, luminance maps, direct irradiance, the albedo update with its [0, 1]
+//! correction, the light-tracing iterations with outlier-robust error statistics, the
+//! super-resolved luminance after the first pass, and the debug outputs of
+//! [`super::DebugSettings`]. Tests: `tests/delight.rs` (round trip on a small Cornell box).
+
+// Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
+use super::atlas::{Atlas, NO_TRI};
+use super::timing::{StageClock, Timings};
+use super::views::{PureBuffer, View};
+use super::*;
+use opal::error::{Error, Result};
+use opal::integrator::light_tracer::{self, IrradianceTarget, LightTraceSettings};
+use opal::math::{PI, Vec3};
+use opal::scene::Scene;
+use opal::scene::desc::{BsdfDesc, SceneDesc, TextureDesc};
+use rayon::prelude::*;
+
+fn bbox(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
+    let mut lo = Vec3::splat(f32::MAX);
+    let mut hi = Vec3::splat(f32::MIN);
+    for p in points {
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    (lo, hi)
+}
+
+/// Size of the bitmap reflectance of a diffuse (or two-sided diffuse) BSDF, if any.
+fn existing_texture_size(b: &BsdfDesc) -> Option<(usize, usize)> {
+    match b {
+        BsdfDesc::Diffuse { reflectance: TextureDesc::Bitmap(bm) } => Some((bm.image.width, bm.image.height)),
+        BsdfDesc::TwoSided(inner) => existing_texture_size(inner),
+        _ => None,
+    }
+}
+
+/// Box filter of radius `r` texels within charts (separable, normalised over covered texels of
+/// the same chart).
+pub fn smooth_in_charts(v: &[[f32; 3]], a: &Atlas, r: usize) -> Vec<[f32; 3]> {
+    if r == 0 {
+        return v.to_vec();
+    }
+    let (w, h) = (a.width, a.height);
+    let chart: Vec<u32> = (0..w * h).map(|i| a.texel_chart(i)).collect();
+    let pass = |src: &[[f32; 3]], horizontal: bool| -> Vec<[f32; 3]> {
+        (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                if chart[i] == u32::MAX {
+                    return src[i];
+                }
+                let (x, y) = ((i % w) as i64, (i / w) as i64);
+                let mut acc = [0f64; 3];
+                let mut k = 0f64;
+                for d in -(r as i64)..=(r as i64) {
+                    let (xx, yy) = if horizontal { (x + d, y) } else { (x, y + d) };
+                    if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
+                        continue;
+                    }
+                    let j = yy as usize * w + xx as usize;
+                    if chart[j] == chart[i] {
+                        for c in 0..3 {
+                            acc[c] += src[j][c] as f64;
+                        }
+                        k += 1.0;
+                    }
+                }
+                acc.map(|x| (x / k) as f32)
+            })
+            .collect()
+    };
+    let t = pass(v, true);
+    pass(&t, false)
+}
+
+/// `Kd = π L / (Ed + Ei)` with the [0, 1] correction (raises `Ei` where `Kd > 1`); returns the
+/// number of clamped texel-channels.
+fn update_kd(o: &mut ObjectResult) -> usize {
+    let mut clamped = 0;
+    let n = o.kd.len();
+    let covered: Vec<bool> = (0..n).map(|i| o.atlas.texel_tri[i] != NO_TRI).collect();
+    for i in 0..n {
+        if !o.observed[i] {
+            continue;
+        }
+        for c in 0..3 {
+            let l = o.l[i][c].max(0.0);
+            let e = o.ed[i][c] + o.ei[i][c];
+            let pl = PI * l;
+            if pl > e {
+                // Kd would exceed 1: smallest admissible Ei
+                o.ei[i][c] = (pl - o.ed[i][c]).max(0.0);
+                o.kd[i][c] = if pl > 0.0 { 1.0 } else { 0.0 };
+                clamped += 1;
+            } else {
+                o.kd[i][c] = if e > 0.0 { pl / e } else { 0.0 };
+            }
+        }
+    }
+    let r = (o.atlas.width / 16).max(4);
+    let chart: Vec<u32> = (0..n).map(|i| o.atlas.texel_chart(i)).collect();
+    let left = inpaint::inpaint(&mut o.kd, &o.observed, &covered, &chart, o.atlas.width, o.atlas.height, r);
+    if left > 0 {
+        // charts seen by no view: the mean of the observed texels
+        let m = o.mean_kd_observed();
+        let (kd, obs) = (&mut o.kd, &o.observed);
+        let seen: std::collections::HashSet<u32> = (0..n).filter(|&i| obs[i]).map(|i| chart[i]).collect();
+        for i in 0..n {
+            if covered[i] && !obs[i] && !seen.contains(&chart[i]) {
+                kd[i] = m.map(|v| v as f32);
+            }
+        }
+    }
+    inpaint::dilate(&mut o.kd, &covered, o.atlas.width, o.atlas.height, 4);
+    clamped
+}
+
+fn quartiles(v: &mut [f64]) -> (f64, f64) {
+    v.sort_by(f64::total_cmp);
+    let q = |f: f64| {
+        let x = f * (v.len() - 1) as f64;
+        let (i, t) = (x.floor() as usize, x - x.floor());
+        if i + 1 < v.len() { v[i] * (1.0 - t) + v[i + 1] * t } else { v[i] }
+    };
+    (q(0.25), q(0.75))
+}
+
+/// Runs the de-lighting. `log` receives one line per stage.
+pub fn delight(
+    desc: &SceneDesc,
+    views: &[View],
+    s: &DelightSettings,
+    log: &(dyn Fn(&str) + Sync),
+) -> Result<DelightResult> {
+    let t_all = StageClock::start();
+    let mut timings = Timings::default();
+    let mut warnings = Vec::new();
+    let scene = Scene::build(desc)?;
+    if scene.light_sampler().is_none() {
+        return Err(Error::invalid(
+            "scene",
+            "has no emitter with positive power: the lighting must be known to separate it from the albedo",
+        ));
+    }
+    if views.is_empty() {
+        return Err(Error::invalid("views", "no view given"));
+    }
+    // selection
+    let selected: Vec<usize> = match &s.objects {
+        Some(names) => {
+            let mut v = Vec::new();
+            for n in names {
+                let k = scene.shapes.iter().position(|sh| &sh.id == n).ok_or_else(|| {
+                    let ids: Vec<&str> = scene.shapes.iter().map(|s| s.id.as_str()).collect();
+                    Error::invalid(
+                        format!("selected object {n}"),
+                        format!("no shape with that id (have: {})", ids.join(", ")),
+                    )
+                })?;
+                if scene.shapes[k].emission.is_some() {
+                    return Err(Error::invalid(
+                        format!("selected object {n}"),
+                        "is an emitter; only non-emitting shapes can be recovered",
+                    ));
+                }
+                v.push(k);
+            }
+            v
+        }
+        None => (0..scene.shapes.len()).filter(|&k| scene.shapes[k].emission.is_none()).collect(),
+    };
+    if selected.is_empty() {
+        return Err(Error::invalid("scene", "no non-emitting shape to recover"));
+    }
+    let cams: Vec<(Vec3, f32, usize)> =
+        views.iter().map(|v| (v.camera.origin(), v.camera.tan_half_x, v.camera.width)).collect();
+    // 1. atlases
+    let t0 = StageClock::start();
+    let mut objects = Vec::new();
+    let mut skipped = Vec::new();
+    for &k in &selected {
+        let sh = &desc.shapes[k];
+        // an object that keeps its UVs and already has a square bitmap texture gets a texture
+        // of the same size (the recovered map replaces it texel for texel); otherwise adaptive
+        let tex_res = existing_texture_size(&sh.bsdf).filter(|&(w, h)| w == h && s.keep_uvs).map(|(w, _)| w);
+        let auto = || atlas::auto_resolution(&sh.mesh, &cams);
+        let res = s.resolution.or(tex_res).unwrap_or_else(auto);
+        let built = match atlas::build_atlas(&sh.mesh, res, s.keep_uvs) {
+            Ok(a) if !a.kept_uvs && s.resolution.is_none() && tex_res.is_some() => {
+                atlas::build_atlas(&sh.mesh, auto(), s.keep_uvs)
+            }
+            other => other,
+        };
+        match built {
+            Ok(a) => {
+                let n = a.width * a.height;
+                log(&format!(
+                    "atlas {}: {}×{}, {} chart(s), {} UVs",
+                    sh.id,
+                    a.width,
+                    a.height,
+                    a.charts,
+                    if a.kept_uvs { "kept" } else { "new" }
+                ));
+                objects.push(ObjectResult {
+                    shape: k,
+                    id: sh.id.clone(),
+                    atlas: a,
+                    l: vec![[0.0; 3]; n],
+                    observed: vec![false; n],
+                    ed: vec![[0.0; 3]; n],
+                    ei: vec![[0.0; 3]; n],
+                    kd: vec![[0.0; 3]; n],
+                    near_emitter: false,
+                    seen_fraction: 0.0,
+                    clamped: 0,
+                });
+            }
+            Err(e) => {
+                warnings.push(format!("object '{}' skipped: UV unwrap failed: {e}", sh.id));
+                skipped.push((sh.id.clone(), format!("UV unwrap failed: {e}")));
+            }
+        }
+    }
+    if objects.is_empty() {
+        return Err(Error::invalid("objects", "no object could be unwrapped"));
+    }
+    timings.push("unwrap", t0.elapsed());
+    // 4. direct irradiance (first: it shapes the prior of the super-resolved luminance maps)
+    let t0 = StageClock::start();
+    for (j, o) in objects.iter_mut().enumerate() {
+        o.ed =
+            direct_irradiance(&scene, &o.atlas, s.direct_samples, s.direct_pilot, s.seed, 0xED00 + j as u64);
+    }
+    timings.push("direct", t0.elapsed());
+    // 5. initial Kd
+    let mut avg = [0f64; 3];
+    let mut aw = 0f64;
+    for o in &objects {
+        for i in 0..o.ed.len() {
+            let t = o.atlas.texel_tri[i];
+            if t != NO_TRI {
+                let a = o.atlas.texel_area[t as usize] as f64;
+                for c in 0..3 {
+                    avg[c] += a * o.ed[i][c] as f64;
+                }
+                aw += a;
+            }
+        }
+    }
+    let avg = avg.map(|v| (v / aw.max(1e-30)) as f32);
+    // 2–3. luminance maps
+    let t0 = StageClock::start();
+    let pure: Vec<PureBuffer> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
+    let (slo, shi) = scene.bounds();
+    let diag = (shi - slo).length();
+    let emit_boxes: Vec<(Vec3, Vec3)> = scene
+        .shapes
+        .iter()
+        .filter(|s| s.emission.is_some())
+        .map(|s| bbox(s.mesh.positions.iter().copied()))
+        .collect();
+    for o in &mut objects {
+        let (mut l, mut obs) = luminance_map(&scene, o.shape as u32, &o.atlas, views, &pure);
+        // super-resolution here only when no light-tracing pass gives the shading (see below)
+        if s.iterations == 0
+            && let Some(sr) = &s.superres
+            && let Some((ls, os)) = superres::superres_luminance(
+                &scene,
+                o.shape as u32,
+                &o.atlas,
+                views,
+                &pure,
+                (&l, &obs),
+                None,
+                sr,
+            )
+        {
+            l = ls;
+            obs = os;
+        }
+        o.l = l;
+        o.observed = obs;
+        let (lo, hi) = bbox(o.atlas.mesh.positions.iter().copied());
+        o.near_emitter = emit_boxes.iter().any(|(elo, ehi)| {
+            let gap = (*elo - hi).max(lo - *ehi).max(Vec3::ZERO);
+            gap.length() < 0.05 * diag
+        });
+        let left = finish_luminance(o);
+        if o.seen_fraction == 0.0 {
+            warnings.push(format!(
+                "object '{}' is seen by no view: its albedo is the scene average (flagged)",
+                o.id
+            ));
+        } else if left > 0 {
+            warnings.push(format!(
+                "object '{}': {left} texels in charts seen by no view were filled with the object's mean",
+                o.id
+            ));
+        }
+        log(&format!(
+            "luminance {}: {:.1} % of texels seen{}",
+            o.id,
+            100.0 * o.seen_fraction,
+            if o.near_emitter { ", near an emitter (median)" } else { "" }
+        ));
+    }
+    timings.push("luminance", t0.elapsed());
+    // 5. initial Kd
+    for o in &mut objects {
+        for i in 0..o.ed.len() {
+            for c in 0..3 {
+                let e = o.ed[i][c];
+                o.ei[i][c] = s.indirect_share * if e > 0.0 { e } else { avg[c] };
+            }
+        }
+        o.clamped = update_kd(o);
+    }
+    // unseen objects: scene-average albedo of the seen ones
+    fill_unseen(&mut objects);
+    // 6. iterations
+    let targets: Vec<Option<IrradianceTarget>> = (0..desc.shapes.len())
+        .map(|k| {
+            objects.iter().find(|o| o.shape == k).map(|o| IrradianceTarget {
+                width: o.atlas.width,
+                height: o.atlas.height,
+                texel_area: o.atlas.texel_area.clone(),
+            })
+        })
+        .collect();
+    let mut iterations = Vec::new();
+    let mut converged = false;
+    let mut light_paths = 0;
+    let (mut lt_wall, mut lt_cpu, mut post_wall, mut post_cpu) = (0f64, 0f64, 0f64, 0f64);
+    let t_it = StageClock::start();
+    for k in 1..=s.iterations {
+        let t0 = std::time::Instant::now();
+        let c0 = StageClock::start();
+        let rdesc = recovered_desc(desc, &objects);
+        let rscene = Scene::build(&rdesc)?;
+        let lt = LightTraceSettings {
+            paths: s.light_paths,
+            batch_size: 1 << 20,
+            max_depth: -1,
+            rr_depth: 5,
+            seed: s.seed.wrapping_add(k as u64),
+            // first-hit irradiance does not depend on the albedos: its diagnostic (`direct_ratio`)
+            // is measured in the first pass only; the method uses the indirect map
+            direct: k == 1,
+        };
+        let out = light_tracer::trace(&rscene, &targets, &lt, &|| {});
+        let (w, c) = c0.elapsed();
+        lt_wall += w;
+        lt_cpu += c;
+        let c0 = StageClock::start();
+        light_paths += out.paths;
+        if out.nonfinite > 0 {
+            warnings
+                .push(format!("iteration {k}: {} non-finite light-tracing deposits dropped", out.nonfinite));
+        }
+        let mut per_object = Vec::new();
+        let mut error_maps = Vec::new();
+        let mut direct_ratio = Vec::new();
+        let (mut gmax, mut gsum, mut gcount) = (0f64, 0f64, 0usize);
+        // objects in parallel (smoothing, error statistics, update and inpainting of each)
+        let post: Vec<_> = objects
+            .par_iter_mut()
+            .map(|o| {
+                let m = out.maps[o.shape].as_ref().expect("target");
+                let r = s.smooth.unwrap_or((o.atlas.width / 64).max(1));
+                let cov = &o.atlas.coverage;
+                let ei_raw: Vec<[f32; 3]> = m
+                    .indirect
+                    .iter()
+                    .zip(cov)
+                    .map(|(e, &c)| e.map(|x| (x / c.max(1.0 / 16.0) as f64) as f32))
+                    .collect();
+                let ei_r = smooth_in_charts(&ei_raw, &o.atlas, r);
+                // direct consistency (means over covered texels; first pass only: the later
+                // passes deposit no first hits)
+                let (mut a, mut b) = (0f64, 0f64);
+                if !m.direct.is_empty() {
+                    for i in 0..o.ed.len() {
+                        if o.atlas.texel_tri[i] != NO_TRI {
+                            a += luminance(m.direct[i].map(|x| x as f32)) as f64
+                                / cov[i].max(1.0 / 16.0) as f64;
+                            b += luminance(o.ed[i]) as f64;
+                        }
+                    }
+                }
+                let ratio = if b > 0.0 { a / b } else { f64::NAN };
+                // error map
+                let n = o.l.len();
+                let mut rel = vec![f32::NAN; n];
+                let mut vals = Vec::new();
+                let mut e_abs = vec![[0f32; 3]; n];
+                for i in 0..n {
+                    if !o.observed[i] {
+                        continue;
+                    }
+                    let lr: [f32; 3] = std::array::from_fn(|c| o.kd[i][c] / PI * (o.ed[i][c] + ei_r[i][c]));
+                    e_abs[i] = std::array::from_fn(|c| o.l[i][c] - lr[c]);
+                    let y = luminance(o.l[i]);
+                    if y > 0.0 {
+                        rel[i] = (y - luminance(lr)) / y;
+                        vals.push(rel[i] as f64);
+                    }
+                }
+                let (mut omax, mut osum, mut ocount, mut outl) = (0f64, 0f64, 0usize, 0usize);
+                if !vals.is_empty() {
+                    let (q1, q3) = quartiles(&mut vals);
+                    let iqr = q3 - q1;
+                    let (lo, hi) = (q1 - 1.5 * iqr, q3 + 1.5 * iqr);
+                    for i in 0..n {
+                        let r = rel[i] as f64;
+                        if r.is_nan() {
+                            continue;
+                        }
+                        if r < lo || r > hi {
+                            outl += 1;
+                            e_abs[i] = [0.0; 3];
+                            continue;
+                        }
+                        omax = omax.max(r.abs());
+                        osum += r.abs();
+                        ocount += 1;
+                    }
+                }
+                // update Ei
+                match s.update {
+                    UpdateRule::FixedPoint => {
+                        // under-relaxed fixed point: the plain map oscillates (period 2) in a
+                        // closed, bright room; averaging also halves the Monte-Carlo variance
+                        for i in 0..n {
+                            for c in 0..3 {
+                                o.ei[i][c] =
+                                    if k == 1 { ei_r[i][c] } else { 0.5 * (o.ei[i][c] + ei_r[i][c]) };
+                            }
+                        }
+                    }
+                    UpdateRule::Paper { alpha0 } => {
+                        let alpha = alpha0 / (1.0 + k as f32);
+                        for i in 0..n {
+                            for c in 0..3 {
+                                o.ei[i][c] = (o.ei[i][c] + alpha * o.kd[i][c] / PI * e_abs[i][c]).max(0.0);
+                            }
+                        }
+                    }
+                }
+                o.clamped = update_kd(o);
+                if s.debug.print {
+                    let mut acc = [[0f64; 3]; 4];
+                    let mut cnt = 0f64;
+                    for i in 0..n {
+                        if o.observed[i] {
+                            cnt += 1.0;
+                            for c in 0..3 {
+                                acc[0][c] += o.l[i][c] as f64;
+                                acc[1][c] += o.ed[i][c] as f64;
+                                acc[2][c] += o.ei[i][c] as f64;
+                                acc[3][c] += o.kd[i][c] as f64;
+                            }
+                        }
+                    }
+                    log(&format!(
+                        "  {}: L {:.4?} Ed {:.4?} Ei {:.4?} Kd {:.4?} clamped {}",
+                        o.id,
+                        acc[0].map(|v| v / cnt),
+                        acc[1].map(|v| v / cnt),
+                        acc[2].map(|v| v / cnt),
+                        acc[3].map(|v| v / cnt),
+                        o.clamped
+                    ));
+                }
+                (omax, osum, ocount, outl, rel, ratio)
+            })
+            .collect();
+        for (omax, osum, ocount, outl, rel, ratio) in post {
+            gmax = gmax.max(omax);
+            gsum += osum;
+            gcount += ocount;
+            per_object.push((omax, osum / ocount.max(1) as f64, outl));
+            error_maps.push(rel);
+            direct_ratio.push(ratio);
+        }
+        // multi-view super-resolution once the first pass gives the indirect irradiance: its
+        // prior acts on B / (Ed + Ei), i.e. on the albedo rather than on the lighting
+        let (w, c) = c0.elapsed();
+        post_wall += w;
+        post_cpu += c;
+        if k == 1
+            && let Some(sr) = &s.superres
+        {
+            let t1 = StageClock::start();
+            // objects in parallel (each solve is parallel inside too, but its many short
+            // parallel loops leave a core idle on small objects); the result of each object does
+            // not depend on the thread count
+            let msgs: Vec<Option<String>> = objects
+                .par_iter_mut()
+                .map(|o| {
+                    let to = std::time::Instant::now();
+                    // the indirect part smoothed further (low-frequency; its Monte-Carlo noise would
+                    // otherwise enter the prior's albedo estimate)
+                    let ei = smooth_in_charts(&o.ei, &o.atlas, (o.atlas.width / 16).max(1));
+                    let mut shading: Vec<f32> =
+                        o.ed.iter()
+                            .zip(&ei)
+                            .map(|(d, i)| luminance(std::array::from_fn(|c| d[c] + i[c])))
+                            .collect();
+                    if let Some(p) = &s.debug.shading {
+                        // error analysis: a given irradiance map (e.g. the true one) instead
+                        if let Ok(img) = opal::image::read::read_image(p)
+                            && img.data.len() == shading.len()
+                        {
+                            shading = img.data.iter().map(|v| luminance(v.0)).collect();
+                        }
+                    }
+                    if let Some((ls, os)) = superres::superres_luminance(
+                        &scene,
+                        o.shape as u32,
+                        &o.atlas,
+                        views,
+                        &pure,
+                        (&o.l, &o.observed),
+                        Some(&shading),
+                        sr,
+                    ) {
+                        o.l = ls;
+                        o.observed = os;
+                        finish_luminance(o);
+                        o.clamped = update_kd(o);
+                        Some(format!(
+                            "super-resolved luminance {}: {:.1} % of texels seen ({:.1} s)",
+                            o.id,
+                            100.0 * o.seen_fraction,
+                            to.elapsed().as_secs_f64()
+                        ))
+                    } else {
+                        None
+                    }
+                })
+                .collect();
+            msgs.iter().flatten().for_each(|m| log(m));
+            timings.push("superres", t1.elapsed());
+        }
+        let c0 = StageClock::start();
+        fill_unseen(&mut objects);
+        let st = IterationStats {
+            iteration: k,
+            max_rel_error: gmax,
+            mean_rel_error: gsum / gcount.max(1) as f64,
+            per_object,
+            error_maps,
+            seconds: t0.elapsed().as_secs_f64(),
+            direct_ratio,
+        };
+        log(&format!(
+            "iteration {k}: max rel. error {:.2} %, mean {:.2} % ({:.1} s, {} light paths)",
+            100.0 * st.max_rel_error,
+            100.0 * st.mean_rel_error,
+            st.seconds,
+            s.light_paths
+        ));
+        let done = st.max_rel_error < s.tolerance;
+        iterations.push(st);
+        let (w, c) = c0.elapsed();
+        post_wall += w;
+        post_cpu += c;
+        if done {
+            converged = true;
+            break;
+        }
+    }
+    debug_dump(&objects, "final", s.debug.dump_dir.as_deref());
+    timings.push("iterations", t_it.elapsed());
+    timings.push("light_tracing", (lt_wall, lt_cpu));
+    timings.push("iteration_post", (post_wall, post_cpu));
+    timings.push("total", t_all.elapsed());
+    let Timings { wall: timings, cpu: cpu_timings } = timings;
+    Ok(DelightResult { objects, skipped, iterations, converged, warnings, timings, cpu_timings, light_paths })
+}
+
+/// Seen fraction, median filter next to emitters and inpainting of the holes of a new luminance
+/// map; returns the number of texels left unfilled (charts seen by no view).
+fn finish_luminance(o: &mut ObjectResult) -> usize {
+    let covered = o.atlas.covered().max(1);
+    o.seen_fraction = o.observed.iter().filter(|&&b| b).count() as f64 / covered as f64;
+    let chart: Vec<u32> = (0..o.l.len()).map(|i| o.atlas.texel_chart(i)).collect();
+    let (w, h) = (o.atlas.width, o.atlas.height);
+    if o.near_emitter {
+        inpaint::median3(&mut o.l, &o.observed, &chart, w, h);
+    }
+    let covered_mask: Vec<bool> = (0..o.l.len()).map(|i| o.atlas.texel_tri[i] != NO_TRI).collect();
+    inpaint::inpaint(&mut o.l, &o.observed, &covered_mask, &chart, w, h, (w / 16).max(4))
+}
+
+/// Debug dump ([`DebugSettings::dump_dir`]): per object the luminance map, observed mask, direct
+/// and indirect irradiance and albedo as EXR files (`<id>_<tag>_<what>.exr`), for error analysis.
+fn debug_dump(objects: &[ObjectResult], tag: &str, dir: Option<&std::path::Path>) {
+    let Some(dir) = dir else { return };
+    let _ = std::fs::create_dir_all(dir);
+    for o in objects {
+        let (w, h) = (o.atlas.width, o.atlas.height);
+        let obs: Vec<[f32; 3]> = o.observed.iter().map(|&b| [b as u8 as f32; 3]).collect();
+        for (what, v) in [("l", &o.l), ("obs", &obs), ("ed", &o.ed), ("ei", &o.ei), ("kd", &o.kd)] {
+            let path = dir.join(format!("{}_{tag}_{what}.exr", o.id));
+            if let Ok(f) = std::fs::File::create(&path) {
+                let _ = opal::image::write::write_exr(&to_image(v, w, h), std::io::BufWriter::new(f));
+            }
+        }
+    }
+}
+
+fn fill_unseen(objects: &mut [ObjectResult]) {
+    let mut acc = [0f64; 3];
+    let mut w = 0f64;
+    for o in objects.iter().filter(|o| o.seen_fraction > 0.0) {
+        let m = o.mean_kd();
+        let a = o.atlas.mesh.area();
+        for c in 0..3 {
+            acc[c] += a * m[c];
+        }
+        w += a;
+    }
+    if w <= 0.0 {
+        return;
+    }
+    let mean = acc.map(|v| (v / w) as f32);
+    for o in objects.iter_mut().filter(|o| o.seen_fraction == 0.0) {
+        o.kd.iter_mut().for_each(|k| *k = mean);
+    }
+}

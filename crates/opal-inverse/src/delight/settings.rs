@@ -1,0 +1,90 @@
+//! Settings of the de-lighting ([`DelightSettings`]): iterations and tolerance, light paths,
+//! atlas resolution, direct-irradiance sampling, the indirect update rule ([`UpdateRule`]), the
+//! super-resolution settings and the debug outputs ([`DebugSettings`], off by default).
+//! Tests: `tests/delight.rs` and the CLI's `opal delight` tests (through [`super::delight`]).
+
+use super::superres;
+
+/// How the indirect irradiance is updated between light-tracing passes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum UpdateRule {
+    /// `Ei ← Ei_render` (fixed point of `Kd = πL/(Ed + Ei(Kd))`).
+    FixedPoint,
+    /// The paper's gradient step with `α_k = alpha0 / (1 + k)`.
+    Paper {
+        /// Initial step α₀ (the paper: 2).
+        alpha0: f32,
+    },
+}
+
+/// Settings of [`delight`](super::delight).
+#[derive(Clone, Debug)]
+pub struct DelightSettings {
+    /// Shapes to recover (ids); `None` = every non-emitting shape.
+    pub objects: Option<Vec<String>>,
+    /// Maximum number of light-tracing iterations.
+    pub iterations: usize,
+    /// Stop when the max relative error (luminance, outliers removed) falls below this.
+    pub tolerance: f64,
+    /// Light paths per light-tracing pass.
+    pub light_paths: u64,
+    /// Texture resolution (square); `None` = the size of the object's existing square bitmap
+    /// texture when its UVs are kept, else adaptive (256–4096).
+    pub resolution: Option<usize>,
+    /// Seed.
+    pub seed: u64,
+    /// Keep usable existing UVs.
+    pub keep_uvs: bool,
+    /// Light samples per texel for the direct irradiance.
+    pub direct_samples: u32,
+    /// Pilot light samples per texel of the adaptive direct irradiance (0 = every texel gets
+    /// `direct_samples`); see [`direct_irradiance`](super::direct_irradiance).
+    pub direct_pilot: u32,
+    /// Initial indirect share of the direct irradiance.
+    pub indirect_share: f32,
+    /// Update rule of the indirect irradiance.
+    pub update: UpdateRule,
+    /// Smoothing radius (texels) of the rendered indirect irradiance; `None` = resolution/64.
+    pub smooth: Option<usize>,
+    /// Multi-view super-resolved luminance maps ([`superres`]); `None` = back-projection only.
+    pub superres: Option<superres::SrSettings>,
+    /// Debug and error-analysis outputs (all off by default).
+    pub debug: DebugSettings,
+}
+
+/// Debug and error-analysis outputs of [`delight`](super::delight); [`Default`] = all off (no
+/// effect on the results).
+#[derive(Clone, Debug, Default)]
+pub struct DebugSettings {
+    /// Log per object and iteration the mean observed `L`, `Ed`, `Ei`, `Kd` and the number of
+    /// clamped texels.
+    pub print: bool,
+    /// Write per object the luminance map, observed mask, direct and indirect irradiance and
+    /// albedo as EXR files (`<id>_final_<what>.exr`) into this directory at the end.
+    pub dump_dir: Option<std::path::PathBuf>,
+    /// Error analysis: an irradiance map (EXR on the atlas grid, e.g. the true one) used as the
+    /// shading of the super-resolution instead of the estimate `Ed + Ei` (ignored when it cannot
+    /// be read or its size differs from the atlas).
+    pub shading: Option<std::path::PathBuf>,
+}
+
+impl Default for DelightSettings {
+    fn default() -> Self {
+        DelightSettings {
+            objects: None,
+            iterations: 5,
+            tolerance: 0.01,
+            light_paths: 20_000_000,
+            resolution: None,
+            seed: 0,
+            keep_uvs: true,
+            direct_samples: 64,
+            direct_pilot: 16,
+            indirect_share: 0.5,
+            update: UpdateRule::FixedPoint,
+            smooth: None,
+            superres: Some(superres::SrSettings::default()),
+            debug: DebugSettings::default(),
+        }
+    }
+}

@@ -1,0 +1,152 @@
+//! The whole fit ([`fit`]): the one-parameter families, Student-t from the better of them,
+//! hybrid nodes on top of the kept analytic model, every candidate re-simulated with the
+//! independent check seed and kept or rejected by the selection rule; what it fits
+//! ([`FitOptions`]) and what it found ([`FitReport`]).
+//!
+//! Tests: `crates/opal-inverse/tests/ndf_fit.rs`; `crates/opal-cli/tests/fit_ndf.rs`.
+
+use super::{Comparison, Evaluation, Family, FamilyFit, Model, Problem, check_seed, hybrid_spacing};
+use opal::bsdf::microfacet::Ndfs;
+
+/// What [`fit`] fits.
+#[derive(Clone, Debug, Default)]
+pub struct FitOptions {
+    /// `None` = auto (GGX, Beckmann, Student-t; the selection rule keeps one); `Some(Ggx |
+    /// Beckmann)` = that family only; `Some(Student)` = GGX and Beckmann, then Student-t from
+    /// the better one (kept whatever the rule says); `Some(Hybrid)` = auto, then hybrid nodes.
+    pub family: Option<Family>,
+    /// Fit a peak shift δ in every family.
+    pub shift: bool,
+    /// Maximum number of hybrid nodes (free table values), `Some(Hybrid)` only.
+    pub hybrid_nodes: usize,
+}
+
+/// One fitted candidate model and its re-simulation with the independent check seed.
+#[derive(Clone, Debug)]
+pub struct Candidate {
+    /// The fit.
+    pub fit: FamilyFit,
+    /// Quality at the check seed (full photons).
+    pub check: Evaluation,
+}
+
+/// One application of the selection rule.
+#[derive(Clone, Debug)]
+pub struct Decision {
+    /// Index (in [`FitReport::candidates`]) of the simpler model.
+    pub simple: usize,
+    /// Index of the richer model.
+    pub rich: usize,
+    /// The comparison.
+    pub comparison: Comparison,
+}
+
+/// Everything [`fit`] found.
+#[derive(Clone, Debug)]
+pub struct FitReport {
+    /// Every fitted model, in fitting order.
+    pub candidates: Vec<Candidate>,
+    /// Index of the kept model.
+    pub best: usize,
+    /// The selection decisions (Student vs the best one-parameter family, each hybrid node).
+    pub decisions: Vec<Decision>,
+    /// The independent seed of the checks.
+    pub check_seed: u64,
+    /// Whether every optimiser stage of every candidate converged (rejected hybrid steps
+    /// excepted).
+    pub converged: bool,
+}
+
+impl FitReport {
+    /// The kept candidate.
+    pub fn best(&self) -> &Candidate {
+        &self.candidates[self.best]
+    }
+    /// The fitted NDF of the kept model (what the exports and renders use).
+    pub fn best_ndf(&self) -> opal::Result<Ndfs> {
+        self.best().fit.model.ndf()
+    }
+}
+
+/// Fits the NDF: the one-parameter families (Brent, or Nelder–Mead with `shift`), the
+/// Student-t family from the better of them, hybrid nodes on top of the kept analytic model;
+/// every candidate is re-simulated with the independent check seed and the richer model is
+/// kept only when [`Problem::compare`] accepts it.
+pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
+    let mut cands: Vec<Candidate> = Vec::new();
+    let mut decisions = Vec::new();
+    let families: &[Family] = match opts.family {
+        Some(Family::Ggx) => &[Family::Ggx],
+        Some(Family::Beckmann) => &[Family::Beckmann],
+        _ => &Family::ALL,
+    };
+    for &f in families {
+        let fit = if opts.shift {
+            let mut m = Model::new(f, problem.initial_alpha(f)?);
+            m.delta = Some(0.0);
+            problem.fit_model(&m, 1.0)?
+        } else {
+            problem.fit_family(f)?
+        };
+        let check = problem.check(&fit.model)?;
+        cands.push(Candidate { fit, check });
+    }
+    let mut best = (0..cands.len())
+        .min_by(|&a, &b| cands[a].check.chi2.total_cmp(&cands[b].check.chi2))
+        .expect("at least one family");
+    if matches!(opts.family, None | Some(Family::Student) | Some(Family::Hybrid)) {
+        let b = &cands[best].fit.model;
+        let mut m = b.clone();
+        m.family = Family::Student;
+        m.base = Family::Student;
+        // start on the family that fitted best (q = 2/γ: 1 = GGX, 0.01 ≈ Beckmann), so the
+        // simplex holds the nested model and Nelder–Mead (which keeps its best vertex) can only
+        // improve on it
+        m.gamma = Some(if b.base == Family::Beckmann { 2.0 / 0.01 } else { 2.0 });
+        let fit = problem.fit_model(&m, 0.5)?;
+        let check = problem.check(&fit.model)?;
+        cands.push(Candidate { fit, check });
+        let si = cands.len() - 1;
+        let comparison = problem.compare(&cands[best].check, &cands[si].check, 1);
+        let accepted = comparison.accepted;
+        decisions.push(Decision { simple: best, rich: si, comparison });
+        if accepted || opts.family == Some(Family::Student) {
+            best = si;
+        }
+    }
+    if opts.family == Some(Family::Hybrid) {
+        let h = hybrid_spacing(&cands[best].fit.model);
+        for k in 1..=opts.hybrid_nodes {
+            let pm = &cands[best].fit.model;
+            let mut m = pm.clone();
+            m.family = Family::Hybrid;
+            let mut nodes: Vec<(f64, f64)> = pm.nodes[..pm.nodes.len().saturating_sub(1)].to_vec();
+            nodes.push(((k - 1) as f64 * h, 1.0));
+            nodes.push((k as f64 * h, 1.0));
+            m.nodes = nodes;
+            let fit = problem.fit_hybrid(&m)?;
+            let check = problem.check(&fit.model)?;
+            cands.push(Candidate { fit, check });
+            let hi = cands.len() - 1;
+            let comparison = problem.compare(&cands[best].check, &cands[hi].check, 1);
+            let accepted = comparison.accepted;
+            decisions.push(Decision { simple: best, rich: hi, comparison });
+            if !accepted {
+                break;
+            }
+            best = hi;
+        }
+    }
+    // a rejected hybrid step that did not converge does not matter (the rule stopped there)
+    let converged = cands
+        .iter()
+        .enumerate()
+        .all(|(i, c)| c.fit.converged || (i != best && c.fit.model.family == Family::Hybrid));
+    Ok(FitReport {
+        candidates: cands,
+        best,
+        decisions,
+        check_seed: check_seed(problem.setup.seed),
+        converged,
+    })
+}

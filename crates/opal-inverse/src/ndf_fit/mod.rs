@@ -1,0 +1,426 @@
+//! Fitting the micro-facet normal distribution of a plate's rough face to measured
+//! goniophotometer curves (method A, inverse half).
+//!
+//! Model: the measured plate is simulated by [`opal::gonio::Gonio`] with the same beam,
+//! detectors and incidence angles as the measurement; the rough face carries an NDF
+//! ([`Model`]): an analytic shape ([`Family`]: Beckmann = Gauss-like slopes, GGX = Cauchy-like
+//! slopes, Student-t = tail exponent γ between them, `Profile::StudentT`) of roughness α,
+//! optionally shifted (`D(θ) ∝ base(|θ − δ|)`, `Profile::Shifted`) and optionally hybrid (a
+//! piecewise-linear table of multipliers of the analytic part at nodes θk = k·h from θm = 0,
+//! `Profile::Hybrid`), with single or multiple scattering on the micro-surface.
+//!
+//! Objective: over the measured points whose value is at least `floor_rel` × the maximum of
+//! their curve (the set is fixed by the measurement, so it does not change between evaluations),
+//! `Σ ((s − m)² − σs²)/m / Σ m`: the squared relative residual `((s − m)/m)²` weighted by m
+//! (Pearson's χ² form). Relative residuals weight a lobe's flanks as much as its peak (an
+//! absolute RMS fits only the peaks); the weight m is the inverse relative variance of a
+//! photon count (`Var s ∝ s`), so photon-starved dim points do not dominate the noise of the
+//! objective; subtracting the simulation's variance σs² removes the Monte-Carlo bias
+//! (`E (s − m)² = (E s − m)² + Var s`, and Var s grows with s). The quality reported beside it is
+//! the plain RMS relative residual and the Monte-Carlo noise level, the RMS of the combined
+//! relative standard error `sqrt(σs² + σm²)/m` over the same points, so `rms / noise ≈ 1` means
+//! "fits within noise".
+//!
+//! Smoothness: every evaluation uses the same seed (common random numbers: photon j of
+//! incidence i always draws from `Rng::new(seed, i, j)`), so the objective varies smoothly with
+//! the parameters instead of jumping by the Monte-Carlo noise (the numeric NDFs' rejection
+//! sampler makes it piecewise smooth: a small step can change which proposal is accepted). The final quality (`rms`, `noise`) is reported
+//! from an extra simulation with an *independent* seed, so it is not flattered by the
+//! common-random-number optimum.
+//!
+//! Optimisers (argmin): Brent's method (`BrentOpt`) on ln α for GGX/Beckmann, bracket
+//! ±ln 1.8 around the initial guess, moved when the optimum lands on an edge; Nelder–Mead
+//! (`NelderMead`) for the multi-parameter models over bounded coordinates (ln α, q = 2/γ,
+//! δ in degrees, ln multipliers; out-of-bounds points are clamped and penalised). Two stages:
+//! coarse (`coarse_photons`) from the guess, fine (`photons`) from the coarse optimum. Initial
+//! guess: the half width at half maximum (HWHM) of the measured transmitted lobe at the
+//! smallest incidence; a facet tilted by θm deflects a ray refracted by the plate by about
+//! (n − 1)·θm, so the NDF half width is about HWHM/(n − 1) (for n ≈ 1.5 the normals are about
+//! two times *wider* than the BTDF in angle; the paper's "two times narrower" rule compares
+//! slope spreads); α follows from the family's half-maximum slope; one probe simulation then
+//! rescales α by the ratio of measured to probe HWHM. Student-t starts from the better of
+//! GGX/Beckmann; hybrid from the model `auto` keeps, adding one node at a time.
+//!
+//! Model selection ([`fit`], [`Problem::compare`]): every candidate is re-simulated with an
+//! independent check seed; a richer (nesting) model is kept only when its χ² improvement ΔX
+//! exceeds c·χ²₀.₉₉(k) + 2.326·sd (k extra parameters, sd the noise of ΔX propagated from the
+//! standard errors, c the correlation inflation of overlapping detectors); derivation in
+//! docs/fit-ndf.md.
+//!
+//! Tests: `tests.rs` (models, coordinates, quantiles); `crates/opal-inverse/tests/ndf_fit.rs`
+//! (one Mitsuba reference case in the default tier; all six and the Student-t, shift,
+//! multiple-scattering and hybrid round trips `#[ignore]`d, commands in docs/testing.md).
+
+mod auto;
+mod model;
+mod optimise;
+mod selection;
+
+pub use auto::{Candidate, Decision, FitOptions, FitReport, fit};
+pub use model::{Family, Model, STUDENT_GAMMA_START, hybrid_spacing};
+pub use optimise::{FamilyFit, fit_families};
+pub use selection::{Comparison, Z99, chi2_q99};
+
+use crate::measured::Measured;
+use opal::bsdf::microfacet::Ndfs;
+use opal::gonio::{
+    Beam, DetectorGrid, DetectorLayout, Face, Gonio, GonioResult, GonioSetup, Plate, Scattering, Side,
+};
+use std::sync::Mutex;
+
+/// Which measured side the objective uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FitOn {
+    /// Transmitted curves only.
+    T,
+    /// Reflected curves only.
+    R,
+    /// Both.
+    Both,
+}
+
+impl FitOn {
+    fn uses(self, s: Side) -> bool {
+        matches!((self, s), (FitOn::Both, _) | (FitOn::T, Side::T) | (FitOn::R, Side::R))
+    }
+    /// "T", "R" or "both".
+    pub fn label(self) -> &'static str {
+        match self {
+            FitOn::T => "T",
+            FitOn::R => "R",
+            FitOn::Both => "both",
+        }
+    }
+}
+
+/// The measured instrument and sample, except the unknown NDF.
+#[derive(Clone, Debug)]
+pub struct FitSetup {
+    /// The plate; its rough face (`rough_front` says which) is replaced at every evaluation.
+    pub plate: Plate,
+    /// True when the lit (front) face is the rough one (`entry = rough`).
+    pub rough_front: bool,
+    /// Scattering model of the rough face.
+    pub scattering: Scattering,
+    /// The beam (the incidence angles come from the measurement).
+    pub beam: Beam,
+    /// Angular radius of the detectors (radians).
+    pub detector_radius: f64,
+    /// Distance of the detectors in mm (finite plates, `plate.radius_mm`); `None` = far field.
+    pub detector_distance_mm: Option<f64>,
+    /// Photons per incidence per evaluation.
+    pub photons: u64,
+    /// Seed of the common random numbers.
+    pub seed: u64,
+    /// Interaction limit per photon.
+    pub max_interactions: u32,
+    /// Which side the objective uses.
+    pub fit_on: FitOn,
+    /// Points below this fraction of their curve's maximum are left out of the objective.
+    pub floor_rel: f64,
+    /// Maximum number of optimiser iterations per family and stage (Nelder–Mead: per free
+    /// coordinate).
+    pub max_iters: u64,
+    /// Photons per incidence of the coarse stage (`None`: one stage at `photons`). The coarse
+    /// stage optimises from the initial guess; the fine stage (at `photons`) restarts from its
+    /// optimum with smaller steps. With the same seed the coarse photons are the first ones of
+    /// the fine run (one random stream per photon).
+    pub coarse_photons: Option<u64>,
+}
+
+impl FitSetup {
+    /// The default coarse stage: `photons / 8` when that is at least 10 000, else none.
+    pub fn default_coarse(photons: u64) -> Option<u64> {
+        (photons / 8 >= 10_000).then_some(photons / 8)
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Point {
+    inc: usize,
+    det: usize,
+    m: f64,
+    sm: f64,
+    /// Index of the measured curve (only points of one curve share overlapping detectors).
+    curve: usize,
+}
+
+/// Which simulator an objective evaluation uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// `coarse_photons` per incidence.
+    Coarse,
+    /// `photons` per incidence.
+    Fine,
+}
+
+/// The fitting problem: measurement + simulator.
+pub struct Problem {
+    /// The measured curves.
+    pub measured: Measured,
+    /// The setup.
+    pub setup: FitSetup,
+    gonio: Gonio,
+    gonio_coarse: Option<Gonio>,
+    points: Vec<Point>,
+    /// (curve, detector index in the simulator) for every measured point, used or not.
+    all: Vec<Vec<usize>>,
+    incidences: Vec<f64>,
+    /// Simulations run: (coarse, at `photons` or other).
+    evals: Mutex<(u64, u64)>,
+}
+
+/// Quality of one simulation against the measurement.
+#[derive(Clone, Debug)]
+pub struct Evaluation {
+    /// RMS relative residual over the used points.
+    pub rms: f64,
+    /// RMS combined relative standard error (simulation + measurement) over the same points.
+    pub noise: f64,
+    /// χ² = Σ (s − m)² / (σs² + σm²) over the used points.
+    pub chi2: f64,
+    /// Per incidence (degrees): (incidence_deg, rms, noise, points).
+    pub per_incidence: Vec<(f64, f64, f64, usize)>,
+    /// Number of points used.
+    pub points: usize,
+    /// The simulation.
+    pub result: GonioResult,
+}
+
+impl Problem {
+    /// Builds the simulator for the measurement's incidences and detector angles.
+    pub fn new(measured: Measured, setup: FitSetup) -> opal::Result<Self> {
+        if !(setup.floor_rel.is_finite() && (0.0..1.0).contains(&setup.floor_rel)) {
+            return Err(opal::Error::invalid(
+                "floor_rel",
+                format!("must be in [0, 1), got {}", setup.floor_rel),
+            ));
+        }
+        for s in [Side::R, Side::T] {
+            if setup.fit_on.uses(s) && setup.fit_on != FitOn::Both && !measured.has_side(s) {
+                return Err(opal::Error::invalid(
+                    "fit-on",
+                    format!(
+                        "side {} requested but {} has no point on it (empty side)",
+                        s.label(),
+                        measured.path.display()
+                    ),
+                ));
+            }
+        }
+        if !measured.curves.iter().any(|c| setup.fit_on.uses(c.side)) {
+            return Err(opal::Error::invalid("fit-on", "no measured curve on the requested side(s)"));
+        }
+        let incidences = measured.incidences();
+        let angles = measured.detector_angles();
+        let gsetup = GonioSetup {
+            beam: setup.beam.clone(),
+            incidences: incidences.clone(),
+            detectors: DetectorLayout {
+                grid: DetectorGrid::PlaneOfIncidence { angles: angles.clone() },
+                radius: setup.detector_radius,
+                distance_mm: setup.detector_distance_mm,
+            },
+            photons: setup.photons,
+            seed: setup.seed,
+            max_interactions: setup.max_interactions,
+        };
+        let gonio_coarse = match setup.coarse_photons {
+            Some(n) if n < setup.photons => Some(Gonio::new(GonioSetup { photons: n, ..gsetup.clone() })?),
+            _ => None,
+        };
+        let gonio = Gonio::new(gsetup)?;
+        let na = angles.len();
+        let mut points = Vec::new();
+        let mut all = Vec::new();
+        for (curve, c) in measured.curves.iter().enumerate() {
+            let inc = incidences.iter().position(|&t| t == c.incidence).expect("incidence listed");
+            let off = if c.side == Side::R { 0 } else { na };
+            let floor = setup.floor_rel * c.max();
+            let mut idx = Vec::new();
+            for (k, &a) in c.detector.iter().enumerate() {
+                let j = angles.iter().position(|&x| (x - a).abs() < 1e-9).expect("angle listed");
+                idx.push(off + j);
+                let m = c.value[k];
+                if setup.fit_on.uses(c.side) && m > 0.0 && m >= floor {
+                    points.push(Point { inc, det: off + j, m, sm: c.stderr[k], curve });
+                }
+            }
+            all.push(idx);
+        }
+        if points.is_empty() {
+            return Err(opal::Error::invalid(
+                "measurement",
+                "no point above the floor on the fitted side(s)",
+            ));
+        }
+        Ok(Problem {
+            measured,
+            setup,
+            gonio,
+            gonio_coarse,
+            points,
+            all,
+            incidences,
+            evals: Mutex::new((0, 0)),
+        })
+    }
+
+    /// The simulator.
+    pub fn gonio(&self) -> &Gonio {
+        &self.gonio
+    }
+
+    /// Simulator detector index of every point of measured curve `curve`.
+    pub fn detector_indices(&self, curve: usize) -> &[usize] {
+        &self.all[curve]
+    }
+
+    /// Index of the incidence of measured curve `curve` in the simulation result.
+    pub fn incidence_index(&self, curve: usize) -> usize {
+        let t = self.measured.curves[curve].incidence;
+        self.incidences.iter().position(|&x| x == t).expect("incidence listed")
+    }
+
+    /// Number of simulations run so far (both stages and every check).
+    pub fn evaluations(&self) -> u64 {
+        let e = self.evals.lock().expect("no panic while counting");
+        e.0 + e.1
+    }
+
+    /// Simulations run so far: (coarse stage, at full photons).
+    pub fn evaluations_by_stage(&self) -> (u64, u64) {
+        *self.evals.lock().expect("no panic while counting")
+    }
+
+    /// The plate with `ndf` on its rough face.
+    pub fn plate_with(&self, ndf: Ndfs) -> Plate {
+        let mut p = self.setup.plate.clone();
+        let f = Face::Rough { ndf, scattering: self.setup.scattering };
+        if self.setup.rough_front {
+            p.front = f;
+        } else {
+            p.back = f;
+        }
+        p
+    }
+
+    /// Simulates with `ndf` using `seed` and `photons` (the setup's for the objective).
+    pub fn simulate(&self, ndf: Ndfs, seed: u64, photons: u64) -> opal::Result<GonioResult> {
+        let plate = self.plate_with(ndf);
+        let coarse = self.gonio_coarse.as_ref().filter(|g| g.setup().photons == photons);
+        {
+            let mut e = self.evals.lock().expect("no panic while counting");
+            if coarse.is_some() { e.0 += 1 } else { e.1 += 1 }
+        }
+        if seed == self.setup.seed {
+            if photons == self.setup.photons {
+                return self.gonio.run_plate(&plate);
+            }
+            if let Some(g) = coarse {
+                return g.run_plate(&plate);
+            }
+        }
+        let mut s = self.gonio.setup().clone();
+        s.seed = seed;
+        s.photons = photons;
+        Gonio::new(s)?.run_plate(&plate)
+    }
+
+    fn stage_photons(&self, stage: Stage) -> u64 {
+        match (stage, &self.gonio_coarse) {
+            (Stage::Coarse, Some(g)) => g.setup().photons,
+            _ => self.setup.photons,
+        }
+    }
+
+    /// Whether the setup has a separate coarse stage.
+    pub fn has_coarse_stage(&self) -> bool {
+        self.gonio_coarse.is_some()
+    }
+
+    /// Compares a simulation with the measurement.
+    pub fn evaluate(&self, res: GonioResult) -> Evaluation {
+        let mut se = 0.0;
+        let mut sn = 0.0;
+        let mut chi2 = 0.0;
+        let ni = self.incidences.len();
+        let mut per = vec![(0.0f64, 0.0f64, 0usize); ni];
+        for p in &self.points {
+            let r = &res.incidences[p.inc];
+            let s = r.value[p.det];
+            let ss = r.value_stderr[p.det];
+            let e = (s - p.m) / p.m;
+            let n = (ss * ss + p.sm * p.sm) / (p.m * p.m);
+            se += e * e;
+            sn += n;
+            if n > 0.0 {
+                chi2 += e * e / n;
+            }
+            per[p.inc].0 += e * e;
+            per[p.inc].1 += n;
+            per[p.inc].2 += 1;
+        }
+        let np = self.points.len() as f64;
+        let per_incidence = per
+            .iter()
+            .enumerate()
+            .map(|(i, &(e, n, c))| {
+                let cf = (c as f64).max(1.0);
+                (self.incidences[i].to_degrees(), (e / cf).sqrt(), (n / cf).sqrt(), c)
+            })
+            .collect();
+        Evaluation {
+            rms: (se / np).sqrt(),
+            noise: (sn / np).sqrt(),
+            chi2,
+            per_incidence,
+            points: self.points.len(),
+            result: res,
+        }
+    }
+
+    /// The objective: `Σ ((s − m)² − σs²)/m / Σ m` over the used points, i.e. the squared
+    /// relative residual `((s − m)/m)²` weighted by `m` (Pearson's χ² form). The weight is the
+    /// inverse of the relative variance of a photon-count estimate (`Var s ∝ s`), so the
+    /// dim, photon-starved points do not dominate the objective's noise; subtracting the
+    /// simulation's own variance σs² makes it an unbiased estimate of the misfit of the
+    /// *expected* simulation (plus a constant): without it the Monte-Carlo variance, which
+    /// grows with the simulated value, pulls α towards dimmer lobes.
+    fn objective(&self, ndf: Ndfs, stage: Stage) -> opal::Result<f64> {
+        let res = self.simulate(ndf, self.setup.seed, self.stage_photons(stage))?;
+        let (mut acc, mut wsum) = (0.0, 0.0);
+        for p in &self.points {
+            let r = &res.incidences[p.inc];
+            let (s, ss) = (r.value[p.det], r.value_stderr[p.det]);
+            acc += ((s - p.m).powi(2) - ss * ss) / p.m;
+            wsum += p.m;
+        }
+        Ok(acc / wsum)
+    }
+
+    /// The natural unit of the objective at a simulation: Σ (σs² + σm²)/m / Σ m (the
+    /// objective's value when every residual is one standard error).
+    fn objective_noise(&self, res: &GonioResult) -> f64 {
+        let (mut acc, mut wsum) = (0.0, 0.0);
+        for p in &self.points {
+            let ss = res.incidences[p.inc].value_stderr[p.det];
+            acc += (ss * ss + p.sm * p.sm) / p.m;
+            wsum += p.m;
+        }
+        acc / wsum
+    }
+
+    /// Re-simulates `model` with the independent check seed at full photons.
+    pub fn check(&self, model: &Model) -> opal::Result<Evaluation> {
+        Ok(self.evaluate(self.simulate(model.ndf()?, check_seed(self.setup.seed), self.setup.photons)?))
+    }
+}
+
+/// The independent seed of the quality check and of model selection.
+pub fn check_seed(seed: u64) -> u64 {
+    seed.wrapping_add(0x9E37_79B9)
+}
+
+#[cfg(test)]
+mod tests;
