@@ -6,8 +6,9 @@
 #         displaced, textured icosphere (written by the opal example `make_scan_room` into a
 #         temp dir), view 0 at 256x256, 64 spp, max depth 16
 #   both  cbox then scan
-# Box filter. Each renderer: one warm-up render, then REPEATS timed renders; the median is
-# reported. Mitsuba comes from PyPI (`mitsuba` in bench/.venv). The llvm_ad_rgb variant needs a
+# Box filter. Each renderer: one warm-up render, then REPEATS timed renders; the medians of the
+# wall time and of the CPU time are reported (on a shared machine the per-CPU-s ratio is the
+# steadier one: another tenant takes cores from one side but not the other). Mitsuba comes from PyPI (`mitsuba` in bench/.venv). The llvm_ad_rgb variant needs a
 # libLLVM >= 16 (Debian: libllvm19); without it only scalar_rgb runs.
 # Usage: bash bench/render_vs_mitsuba.sh [REPEATS=3] [cbox|scan|both]
 set -euo pipefail
@@ -35,49 +36,59 @@ bench_scene() {
   local label=$1 scene=$2 w=$3 h=$4 spp=$5 depth=$6
   echo "== $label: load average before $(cut -d' ' -f1-3 /proc/loadavg)"
   "$OPAL" render "$scene" -o "$WORK/warm.exr" --spp "$spp" --max-depth "$depth" --quiet >/dev/null 2>&1
-  local opal_times=() t i
-  for i in $(seq "$REPEATS"); do
-    t=$("$OPAL" render "$scene" -o "$WORK/o.exr" --spp "$spp" --max-depth "$depth" --seed "$i" --json --quiet \
-        | "$VENV/bin/python" -c 'import json,sys; print(json.load(sys.stdin)["seconds"])')
-    opal_times+=("$t")
-  done
-  "$VENV/bin/python" - "$label" "$scene" "$w" "$h" "$spp" "$depth" "$REPEATS" "${opal_times[@]}" <<'PY'
-import statistics, subprocess, sys, json
+  "$VENV/bin/python" - "$label" "$scene" "$w" "$h" "$spp" "$depth" "$REPEATS" "$OPAL" "$WORK" <<'PY'
+import statistics, subprocess, sys, json, resource
 label, scene = sys.argv[1], sys.argv[2]
 w, h, spp, depth, repeats = (int(x) for x in sys.argv[3:8])
-opal = [float(x) for x in sys.argv[8:]]
+opal_bin, work = sys.argv[8], sys.argv[9]
 samples = w * h * spp
+def children_cpu():
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+# Opal: wall = the render's own "seconds"; CPU = the whole process (load and BVH build included)
+opal, opal_cpu = [], []
+for i in range(repeats):
+    c0 = children_cpu()
+    out = subprocess.run([opal_bin, "render", scene, "-o", f"{work}/o.exr", "--spp", str(spp), "--max-depth",
+                          str(depth), "--seed", str(i + 1), "--json", "--quiet"], capture_output=True, text=True, check=True)
+    opal_cpu.append(children_cpu() - c0)
+    opal.append(json.loads(out.stdout)["seconds"])
 child = r"""
-import sys, time, statistics, json
+import sys, time, statistics, json, resource
 import mitsuba as mi
 mi.set_variant(sys.argv[1])
 import drjit as dr, numpy as np
 scene = mi.load_file(sys.argv[2])
 spp = int(sys.argv[4])
 integ = mi.load_dict({"type": "path", "max_depth": int(sys.argv[5])})
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 def one(seed):
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu()
     img = mi.render(scene, spp=spp, seed=seed, integrator=integ, sensor=0)
     np.array(img); dr.sync_thread()
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, cpu() - c0
 one(0)
 print(json.dumps([one(s + 1) for s in range(int(sys.argv[3]))]))
 """
-res = {"opal": statistics.median(opal)}
+res = {"opal": (statistics.median(opal), statistics.median(opal_cpu))}
 for v in ["llvm_ad_rgb", "scalar_rgb"]:
     out = None
     try:
         out = subprocess.run([sys.executable, "-c", child, v, scene, str(repeats), str(spp), str(depth)],
                              capture_output=True, text=True, timeout=3600)
-        res["mitsuba_" + v] = statistics.median(json.loads(out.stdout.strip().splitlines()[-1]))
+        runs = json.loads(out.stdout.strip().splitlines()[-1])
+        res["mitsuba_" + v] = (statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs))
     except Exception as e:
         print(f"mitsuba {v}: failed ({e}; {out.stderr[-300:] if out else ''})", file=sys.stderr)
 print(f"{label} {w}x{h}, {spp} spp, max depth {depth}, medians of {repeats} runs")
-for k, t in res.items():
-    print(f"  {k:22s} {t:8.2f} s  {samples / t / 1e6:7.2f} M samples/s")
-for k, t in res.items():
+print("  (CPU-s: Opal's whole process incl. scene load and BVH build; Mitsuba's render call)")
+for k, (t, c) in res.items():
+    print(f"  {k:22s} {t:8.2f} s wall {samples / t / 1e6:7.2f} M samples/s   {c:8.2f} CPU-s {samples / c / 1e6:7.2f} M samples/CPU-s")
+for k, (t, c) in res.items():
     if k != "opal":
-        print(f"  ratio opal / {k}: {t / res['opal']:.2f}x")
+        print(f"  ratio opal / {k}: {t / res['opal'][0]:.2f}x wall, {c / res['opal'][1]:.2f}x per CPU-s")
 PY
   echo "== $label: load average after $(cut -d' ' -f1-3 /proc/loadavg)"
 }

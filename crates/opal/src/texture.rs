@@ -137,6 +137,25 @@ impl Texture {
             Texture::Bitmap(b) => b.eval(uv),
         }
     }
+
+    /// Hints the cache lines a bitmap lookup at `uv` reads (no effect on results): issued a
+    /// while before [`Texture::eval`], it lets several lookups' memory accesses overlap.
+    #[inline]
+    pub fn prefetch(&self, uv: Vec2) {
+        if let Texture::Bitmap(b) = self {
+            let img = &*b.image;
+            if img.width == 0 || img.height == 0 || !(uv.x.is_finite() && uv.y.is_finite()) {
+                return;
+            }
+            let x = ((uv.x * img.width as f32) as i64).clamp(0, img.width as i64 - 1) as usize;
+            let y = ((uv.y * img.height as f32 - 0.5) as i64).clamp(0, img.height as i64 - 1) as usize;
+            let i = y * img.width + x;
+            crate::simd::prefetch(&img.data[i]);
+            if let Some(v) = img.data.get(i + img.width) {
+                crate::simd::prefetch(v);
+            }
+        }
+    }
 }
 
 impl Bitmap {

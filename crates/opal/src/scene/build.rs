@@ -220,6 +220,14 @@ impl Scene {
 
     /// Local geometry of a hit.
     pub fn interaction(&self, ray: &Ray, h: &Hit) -> SurfaceInteraction {
+        self.interaction_at(ray, h.prim, h.t, h.b1, h.b2)
+    }
+
+    /// [`Scene::interaction`] of a hit given by its parts (triangle, ray parameter, barycentrics
+    /// of the second and third corner), for callers that hold hits as structures of arrays.
+    #[inline]
+    pub fn interaction_at(&self, ray: &Ray, prim: u32, t: f32, b1: f32, b2: f32) -> SurfaceInteraction {
+        let h = Hit { t, prim, b1, b2 };
         let shape_idx = self.prim_shape[h.prim as usize];
         let shape = &self.shapes[shape_idx as usize];
         let local = (h.prim - shape.first_prim) as usize;

@@ -47,6 +47,21 @@ impl Isa {
     }
 }
 
+/// Hint to bring the cache line of `v` close to the core (no effect on results; a no-op off
+/// x86-64).
+#[inline(always)]
+pub fn prefetch<T>(v: &T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // SAFETY: SSE is part of the x86-64 baseline, so the instruction exists; a prefetch
+        // never faults and has no architectural effect, whatever the address.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(v as *const T as *const i8) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = v;
+}
+
 /// The instruction set of this CPU, detected on the first call and cached.
 pub fn isa() -> Isa {
     static ISA: OnceLock<Isa> = OnceLock::new();

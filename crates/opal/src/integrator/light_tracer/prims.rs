@@ -7,7 +7,6 @@
 
 use super::IrradianceTarget;
 use super::fixed_point::FixedPoint;
-use super::sink::prefetch;
 use crate::math::{INV_PI, Vec2, Vec3};
 use crate::scene::Material;
 use crate::scene::Scene;
@@ -111,7 +110,7 @@ impl<'a> Weight<'a> {
         match pr.kd_pi {
             Some(kd_pi) => Weight::LambertConst { kd_pi, ratio },
             None => {
-                prefetch_texture(tex, uv);
+                tex.prefetch(uv);
                 Weight::Lambert { tex, uv, ratio }
             }
         }
@@ -123,24 +122,6 @@ impl<'a> Weight<'a> {
             Weight::Known(w) => w,
             Weight::Lambert { tex, uv, ratio } => (tex.eval(uv) * INV_PI) * ratio,
             Weight::LambertConst { kd_pi, ratio } => kd_pi * ratio,
-        }
-    }
-}
-
-/// Hints the cache lines of a bitmap lookup at `uv` (no effect on results).
-#[inline]
-pub(super) fn prefetch_texture(tex: &Texture, uv: Vec2) {
-    if let Texture::Bitmap(b) = tex {
-        let img = &*b.image;
-        if img.width == 0 || img.height == 0 || !(uv.x.is_finite() && uv.y.is_finite()) {
-            return;
-        }
-        let x = ((uv.x * img.width as f32) as i64).clamp(0, img.width as i64 - 1) as usize;
-        let y = ((uv.y * img.height as f32 - 0.5) as i64).clamp(0, img.height as i64 - 1) as usize;
-        let i = y * img.width + x;
-        prefetch(&img.data[i]);
-        if let Some(v) = img.data.get(i + img.width) {
-            prefetch(v);
         }
     }
 }

@@ -79,7 +79,7 @@ impl Sink {
     pub(super) fn push_small(&mut self, shape: usize, direct: bool, index: u32, value: [i32; 3]) {
         self.totals[shape] += value.iter().map(|v| v.unsigned_abs() as u64).sum::<u64>() as u128;
         let map = 2 * shape + direct as usize;
-        prefetch(&self.maps[map].fine[index as usize]);
+        crate::simd::prefetch(&self.maps[map].fine[index as usize]);
         let q = Queued { map: map as u32, index, value };
         if self.len == QUEUE {
             let old = std::mem::replace(&mut self.ring[self.head], q);
@@ -122,18 +122,4 @@ pub(super) struct Pending {
     pub(super) index: usize,
     pub(super) direct: bool,
     pub(super) value: [i64; 3],
-}
-
-/// Hint to bring the cache line of `v` close to the core (no effect on results).
-#[inline(always)]
-pub(super) fn prefetch<T>(v: &T) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-        // SAFETY: SSE is part of the x86-64 baseline, so the instruction exists; a prefetch
-        // never faults and has no architectural effect, whatever the address.
-        unsafe { _mm_prefetch::<_MM_HINT_T0>(v as *const T as *const i8) };
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = v;
 }

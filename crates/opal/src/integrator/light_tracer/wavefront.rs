@@ -13,7 +13,6 @@ use super::avx;
 use super::path::deposit;
 use super::path::{PathCtx, survival, trace_path};
 #[cfg(target_arch = "x86_64")]
-use super::prims::prefetch_texture;
 use super::prims::{Mat, Prim};
 #[cfg(target_arch = "x86_64")]
 use super::starts::starts;
@@ -538,7 +537,7 @@ impl Wavefront {
                     let uv = Vec2::new(v.uv[0][l], v.uv[1][l]);
                     ln.tex[l] = Some(tex);
                     ln.uv[l] = uv;
-                    prefetch_texture(tex, uv);
+                    tex.prefetch(uv);
                 }
             }
             ln.pending = alive;

@@ -25,7 +25,7 @@ use crate::geometry::Ray;
 use crate::light::Light;
 use crate::math::{Vec2, Vec3};
 use crate::sampling::Rng;
-use crate::scene::{Material, Scene};
+use crate::scene::{Material, Scene, SurfaceInteraction};
 use crate::spectrum::Spectrum;
 
 /// How the lanes' vertices are shaded.
@@ -114,6 +114,7 @@ pub(super) fn render_row(
         Some(lane)
     };
     let mut lanes: [Option<Lane>; PACKET] = std::array::from_fn(|_| take_pixel(&mut next_x));
+    let mut inp = VertexIn::default();
     loop {
         let mut packet = RayPacket::default();
         let mut active = [false; PACKET];
@@ -133,7 +134,7 @@ pub(super) fn render_row(
         match shading {
             Shading::Scalar => shade_scalar(scene, s, &mut lanes, &hits, &mut pending, &mut ended),
             Shading::Wide(kernel) => {
-                shade_wide(scene, s, &mut lanes, &hits, &mut pending, &mut ended, kernel)
+                shade_wide(scene, s, &mut lanes, &hits, &mut pending, &mut ended, kernel, &mut inp)
             }
         }
         let shadowed = pending.contrib.map(|c| c.is_some());
@@ -202,23 +203,33 @@ fn shade_wide(
     pending: &mut Pending,
     ended: &mut [bool; PACKET],
     kernel: Kernel,
+    inp: &mut VertexIn,
 ) {
     let sampler = scene.light_sampler().expect("wide shading needs a light sampler");
-    let mut inp = VertexIn::default();
-    let mut p = [Vec3::ZERO; PACKET];
-    let mut any = false;
+    inp.active = [0; PACKET];
+    // pass 1: the hits' geometry and emission; texture lines prefetched for pass 2
+    let mut sis: [Option<SurfaceInteraction>; PACKET] = [None; PACKET];
     for (k, slot) in lanes.iter_mut().enumerate() {
         let Some(lane) = slot else { continue };
-        let Some(hit) = hits.hit(k) else {
+        if hits.prim[k] < 0 {
             ended[k] = true;
             continue;
-        };
-        let si = scene.interaction(&lane.ray, &hit);
+        }
+        let si = scene.interaction_at(&lane.ray, hits.prim[k] as u32, hits.t[k], hits.b1[k], hits.b2[k]);
         let depth = emission(scene, s, &mut lane.st, &lane.ray, &si);
         if s.max_depth >= 0 && depth >= s.max_depth {
             ended[k] = true;
             continue;
         }
+        if let Material::Diffuse { reflectance, .. } = &scene.shapes[si.shape as usize].material {
+            reflectance.prefetch(si.uv);
+        }
+        sis[k] = Some(si);
+    }
+    let mut p = [Vec3::ZERO; PACKET];
+    let mut any = false;
+    for (k, slot) in lanes.iter_mut().enumerate() {
+        let (Some(lane), Some(si)) = (slot, &sis[k]) else { continue };
         let Material::Diffuse { reflectance, two_sided } = &scene.shapes[si.shape as usize].material else {
             unreachable!("wide shading runs on diffuse scenes only")
         };
@@ -256,7 +267,7 @@ fn shade_wide(
     if !any {
         return;
     }
-    let out = wide::vertex8(&inp, kernel);
+    let out = wide::vertex8(inp, kernel);
     for (k, slot) in lanes.iter_mut().enumerate() {
         if inp.active[k] == 0 {
             continue;
