@@ -29,7 +29,7 @@ pub use triangle::{TriRay, intersect_triangle, offset_ray_origin, spawn_ray, spa
 
 use crate::geometry::Ray;
 use crate::math::Vec3;
-use packet::{PACKET, PacketAccel, PacketHits, RayPacket};
+use packet::{PacketAccel, PacketHits, RayPacket};
 
 /// The intersection API over the implementations (see the module docs).
 #[derive(Clone, Debug)]
@@ -105,13 +105,11 @@ impl Accel {
 
     /// Which of the eight rays of a packet are blocked before `tmax` (bit `l` = lane `l`;
     /// lanes with `tmax ≤ 0` are inactive, bit clear): [`Accel::occluded`] per lane. The BVH
-    /// stops each lane's traversal at its first hit; the tiny structure tests every triangle.
+    /// stops each lane's traversal at its first hit, the tiny structure its triangle loop once
+    /// every lane has one.
     pub fn occluded8(&self, rays: &RayPacket) -> u32 {
         match self {
-            Accel::Tiny { packet, .. } => {
-                let h = packet.intersect_lanes(rays);
-                (0..PACKET).filter(|&l| h.prim[l] >= 0).fold(0, |m, l| m | 1 << l)
-            }
+            Accel::Tiny { packet, .. } => packet.occluded_lanes(rays),
             Accel::Bvh(b) => b.occluded8(rays),
         }
     }

@@ -165,11 +165,34 @@ impl PacketAccel {
         h
     }
 
+    /// Which lanes hit a triangle with `0 < t < tmax` (bit `l` = lane `l`; inactive lanes
+    /// clear): [`BruteForce::occluded`] per lane. With AVX2 the barycentrics are not computed
+    /// and the triangle loop stops once every active lane has a hit.
+    pub fn occluded_lanes(&self, rays: &RayPacket) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: the CPU supports AVX2 (detected when built).
+            let h = unsafe { self.kernel_avx2::<true>(rays) };
+            return (0..PACKET).filter(|&l| h.prim[l] >= 0).fold(0, |m, l| m | 1 << l);
+        }
+        (0..PACKET).filter(|&l| rays.tmax[l] > 0.0 && self.brute.occluded(&rays.ray(l))).fold(0, |m, l| m | 1 << l)
+    }
+
     /// [`PacketAccel::intersect_lanes`] with AVX2 (callers compiled with AVX2 may inline it).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     #[inline]
     pub(crate) fn intersect_avx2(&self, rays: &RayPacket) -> PacketHits {
+        self.kernel_avx2::<false>(rays)
+    }
+
+    /// The packet kernel: closest hits, or (`ANY`) for each lane some hit before `tmax` (`prim`
+    /// of a hit triangle, `t`, `b1`, `b2` meaningless) with the loop ending once every active
+    /// lane has one.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn kernel_avx2<const ANY: bool>(&self, rays: &RayPacket) -> PacketHits {
         use std::arch::x86_64::*;
         use std::mem::MaybeUninit;
         if self.len == 0 {
@@ -215,10 +238,12 @@ impl PacketAccel {
         let mut best_i = _mm256_set1_ps(f32::from_bits(u32::MAX)); // -1: no hit
         let (mut best_v, mut best_w, mut best_inv) = (zero, zero, zero);
         let mut zany = zero;
+        // ANY: lanes still looking for a hit (sign bit set; inactive lanes never hit)
+        let mut open = _mm256_cmp_ps::<_CMP_GT_OQ>(best_t, zero);
         // The sheared corners `(px, py, pz)` of a group, per lane, computed once per distinct
         // corner: a corner shared by several triangles gives each of them the same bits.
         let mut sheared = [const { MaybeUninit::<[__m256; 3]>::uninit() }; 3 * GROUP];
-        for g in &self.groups {
+        'groups: for g in &self.groups {
             for (slot, c) in sheared.iter_mut().zip(&g.verts) {
                 // SAFETY: `Corner` is 16-byte aligned and holds 4 floats.
                 let p = unsafe { _mm256_broadcast_ps(&*(c.0.as_ptr() as *const __m128)) };
@@ -232,7 +257,10 @@ impl PacketAccel {
                     _mm256_mul_ps(sz, az),
                 ]);
             }
-            for tri in &g.tris {
+            for (n, tri) in g.tris.iter().enumerate() {
+                if ANY && n % 8 == 0 && _mm256_movemask_ps(open) == 0 {
+                    break 'groups;
+                }
                 // SAFETY: the offsets are those of slots below `verts.len()` ≤ 3·GROUP (`new`),
                 // which the loop above wrote.
                 let [a, b, c] = [0, 1, 2].map(|k| unsafe {
@@ -266,10 +294,15 @@ impl PacketAccel {
                 // lowest index); blends look at the sign bit only
                 let ok = _mm256_andnot_ps(mixed, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
                 let take = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, best_t));
-                best_t = _mm256_blendv_ps(best_t, t, take);
                 // SAFETY: `tri[3]` is an initialised u32, read as the bits of an f32.
                 let i = unsafe { _mm256_broadcast_ss(&*(&tri[3] as *const u32 as *const f32)) };
                 best_i = _mm256_blendv_ps(best_i, i, take);
+                if ANY {
+                    // `best_t` stays at tmax: any hit before it will do
+                    open = _mm256_andnot_ps(take, open);
+                    continue;
+                }
+                best_t = _mm256_blendv_ps(best_t, t, take);
                 best_v = _mm256_blendv_ps(best_v, v, take);
                 best_w = _mm256_blendv_ps(best_w, w, take);
                 best_inv = _mm256_blendv_ps(best_inv, inv, take);
@@ -300,7 +333,11 @@ impl PacketAccel {
             // Rare: an exactly-zero edge function: the scalar test with its f64 recomputation.
             let l = zmask.trailing_zeros() as usize;
             zmask &= zmask - 1;
-            h.set(l, self.brute.intersect(&rays.ray(l)));
+            if ANY {
+                h.prim[l] = if self.brute.occluded(&rays.ray(l)) { 0 } else { -1 };
+            } else {
+                h.set(l, self.brute.intersect(&rays.ray(l)));
+            }
         }
         h
     }
@@ -367,12 +404,15 @@ mod tests {
                 p.set(l, r);
             }
             let got = pa.intersect(&p);
+            let blocked = pa.occluded_lanes(&p);
             for (l, r) in chunk.iter().enumerate() {
                 assert_eq!(got[l], bf.intersect(r), "lane {l}: {r:?}");
+                assert_eq!(blocked >> l & 1 == 1, bf.occluded(r), "any hit, lane {l}: {r:?}");
             }
             for g in &got[chunk.len()..] {
                 assert_eq!(*g, None, "inactive lanes never hit");
             }
+            assert_eq!(blocked >> chunk.len(), 0, "inactive lanes are never blocked");
         }
     }
 
