@@ -99,6 +99,17 @@ fn truth_albedos(desc: &SceneDesc) -> Vec<(String, [f32; 3])> {
         .collect()
 }
 
+/// FNV-1a hash of the bits of every recovered albedo texel (bit-for-bit comparisons of runs).
+fn kd_hash(r: &DelightResult) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for o in &r.objects {
+        for v in o.kd.iter().flatten() {
+            h = (h ^ v.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    h
+}
+
 fn report(r: &DelightResult, desc: &SceneDesc) -> f64 {
     let mut worst = 0f64;
     for (id, t) in truth_albedos(desc) {
@@ -130,6 +141,7 @@ fn report(r: &DelightResult, desc: &SceneDesc) -> f64 {
             it.seconds
         );
     }
+    println!("albedo bits hash {:016x}", kd_hash(r));
     println!("timings (wall s) {:?}", r.timings);
     println!("timings (CPU s) {:?}", r.cpu_timings);
     worst
