@@ -14,7 +14,7 @@ use opal::math::Vec2;
 use opal::scene::Scene;
 use opal::scene::desc::{SceneDesc, TextureDesc};
 use opal_inverse::delight::views::{View, read_views};
-use opal_inverse::delight::{DelightResult, DelightSettings, delight};
+use opal_inverse::delight::{DelightResult, DelightSettings, ViewGainMode, ViewGainSettings, delight};
 use std::path::{Path, PathBuf};
 
 fn data() -> PathBuf {
@@ -99,6 +99,17 @@ fn truth_albedos(desc: &SceneDesc) -> Vec<(String, [f32; 3])> {
         .collect()
 }
 
+/// FNV-1a hash of the bits of every recovered albedo texel (bit-for-bit comparisons of runs).
+fn kd_hash(r: &DelightResult) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for o in &r.objects {
+        for v in o.kd.iter().flatten() {
+            h = (h ^ v.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    h
+}
+
 fn report(r: &DelightResult, desc: &SceneDesc) -> f64 {
     let mut worst = 0f64;
     for (id, t) in truth_albedos(desc) {
@@ -130,22 +141,22 @@ fn report(r: &DelightResult, desc: &SceneDesc) -> f64 {
             it.seconds
         );
     }
+    println!("albedo bits hash {:016x}", kd_hash(r));
     println!("timings (wall s) {:?}", r.timings);
     println!("timings (CPU s) {:?}", r.cpu_timings);
     worst
 }
 
-#[test]
-fn round_trip_small_cbox() {
-    let mut desc = load(&data().join("scene.xml"));
-    let res = 32;
+/// The Cornell box rendered by Opal's path tracer at its true albedos: 8 views of `res`×`res`
+/// pixels at 256 spp.
+fn small_views(desc: &mut SceneDesc, res: usize) -> Vec<View> {
     for s in &mut desc.sensors {
         s.width = res;
         s.height = res;
     }
-    let scene = Scene::build(&desc).unwrap();
+    let scene = Scene::build(desc).unwrap();
     let ps = PathSettings { spp: 256, max_depth: -1, rr_depth: 5, hide_emitters: false, seed: 7 };
-    let views: Vec<View> = (0..scene.cameras.len())
+    (0..scene.cameras.len())
         .map(|c| {
             let out = render(&scene, c, &ps, &|| {});
             assert_eq!(out.nonfinite, 0);
@@ -157,15 +168,25 @@ fn round_trip_small_cbox() {
                 bad_pixels: 0,
             }
         })
-        .collect();
-    let s = DelightSettings {
+        .collect()
+}
+
+fn small_settings() -> DelightSettings {
+    DelightSettings {
         resolution: Some(32),
         light_paths: 500_000,
         iterations: 4,
         direct_samples: 64,
         tolerance: 0.0,
         ..Default::default()
-    };
+    }
+}
+
+#[test]
+fn round_trip_small_cbox() {
+    let mut desc = load(&data().join("scene.xml"));
+    let views = small_views(&mut desc, 32);
+    let s = small_settings();
     let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
     let worst = report(&r, &desc);
     let truth = opal::image::read::read_image(&data().join("textures/backwall_albedo.exr")).unwrap();
@@ -180,6 +201,98 @@ fn round_trip_small_cbox() {
     // checks orientation (a flipped texture gives < 12 dB).
     assert!(worst < 0.06, "worst relative albedo error {worst}");
     assert!(psnr > 15.0, "{psnr}");
+    assert!(r.view_gains.is_none());
+}
+
+/// Known per-view gains of the tests: exposure 0.8–1.25 times white balance ±5 % per channel,
+/// built so that per channel the median view is exact (the estimator's scale convention, see
+/// `opal_inverse::delight::gains`): views 0–2 lie below and views 5–7 above views 3 and 4 in
+/// every channel, and views 3 and 4 are reciprocal.
+fn known_gains() -> Vec<[f32; 3]> {
+    let e = [0.8f32, 0.86, 0.9, 0.97, 1.0 / 0.97, 1.12, 1.18, 1.25];
+    let wb = [
+        [1.05, 0.97, 0.95],
+        [0.96, 1.04, 1.02],
+        [1.0, 0.95, 1.05],
+        [1.02, 0.99, 0.98],
+        [1.0 / 1.02, 1.0 / 0.99, 1.0 / 0.98],
+        [0.95, 1.03, 1.05],
+        [1.05, 0.96, 1.0],
+        [0.97, 1.05, 0.95],
+    ];
+    e.iter().zip(wb).map(|(e, w)| w.map(|x| e * x)).collect()
+}
+
+/// Multiplies each view's image by its gains (what a camera with those gains would record).
+fn apply_known_gains(views: &mut [View], gains: &[[f32; 3]]) {
+    assert_eq!(views.len(), gains.len());
+    for (v, g) in views.iter_mut().zip(gains) {
+        for p in &mut v.image.data {
+            for (x, f) in p.0.iter_mut().zip(g) {
+                *x *= f;
+            }
+        }
+    }
+}
+
+/// Worst relative error of the estimated gains against the known ones.
+fn gain_errors(r: &DelightResult, truth: &[[f32; 3]]) -> f64 {
+    let g = r.view_gains.as_ref().expect("gains estimated");
+    let mut worst = 0f64;
+    for (vg, t) in g.views.iter().zip(truth) {
+        let e: Vec<f64> = (0..3).map(|c| vg.gain[c] / t[c] as f64 - 1.0).collect();
+        println!(
+            "gain {:10} est {:.4} {:.4} {:.4}  true {:.4} {:.4} {:.4}  err {:+.3}% {:+.3}% {:+.3}%  σ {:.3}% {:.3}% {:.3}%",
+            vg.view,
+            vg.gain[0],
+            vg.gain[1],
+            vg.gain[2],
+            t[0],
+            t[1],
+            t[2],
+            100.0 * e[0],
+            100.0 * e[1],
+            100.0 * e[2],
+            100.0 * vg.std_err[0] / vg.gain[0],
+            100.0 * vg.std_err[1] / vg.gain[1],
+            100.0 * vg.std_err[2] / vg.gain[2],
+        );
+        worst = e.iter().fold(worst, |a, b| a.max(b.abs()));
+    }
+    worst
+}
+
+/// The small round trip at 64×64 pixels, once with exact views (`fixed`) and once with the views
+/// multiplied by known gains (exposure 0.8–1.25, white balance ±5 %) and `exposure+wb`: the
+/// gains are recovered and the albedos come out as with the exact views.
+#[test]
+fn round_trip_small_cbox_with_view_gains() {
+    let mut desc = load(&data().join("scene.xml"));
+    let exact = small_views(&mut desc, 64);
+    let r0 = delight(&desc, &exact, &small_settings(), &|_| {}).unwrap();
+    println!("exact views, fixed:");
+    let worst0 = report(&r0, &desc);
+    let mut views = exact.clone();
+    let truth_gains = known_gains();
+    apply_known_gains(&mut views, &truth_gains);
+    let mut s = small_settings();
+    s.view_gains = ViewGainSettings { mode: ViewGainMode::ExposureWb, ..Default::default() };
+    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
+    println!("gained views, exposure+wb:");
+    let worst = report(&r, &desc);
+    let gerr = gain_errors(&r, &truth_gains);
+    println!(
+        "worst gain error {:.3} %; worst albedo error {:.2} % (exact views {:.2} %)",
+        100.0 * gerr,
+        100.0 * worst,
+        100.0 * worst0
+    );
+    assert!(r.warnings.iter().all(|w| !w.contains("gain")), "{:?}", r.warnings);
+    // measured 0.84 % (view_05; systematic: the footprints of 64-pixel views — 0.08 % on the
+    // 256-pixel reference views); ignoring the gains would leave up to 31 %
+    assert!(gerr < 0.01, "worst relative gain error {gerr}");
+    // measured 1.42 % vs 1.66 % with the exact views
+    assert!(worst < worst0 + 0.005, "worst relative albedo error {worst} vs {worst0} with exact views");
 }
 
 #[test]
@@ -202,4 +315,52 @@ fn mitsuba_cbox_acceptance() {
     );
     assert!(worst < 0.01, "acceptance: mean albedo within 1 %: worst {worst}");
     assert!(psnr >= 38.0, "acceptance: back wall PSNR ≥ 38 dB: {psnr}");
+}
+
+/// The independent Mitsuba 3 data set with its views multiplied by known gains (exposure
+/// 0.8–1.25, white balance ±5 %; [`known_gains`]) and de-lit with `exposure+wb`: the issue-26
+/// acceptance (gains within 0.5 %, constant albedos within 1 %, back wall ≥ 38 dB). With
+/// `OPAL_VIEW_GAINS=fixed|exposure|exposure+wb` the mode is overridden (e.g. `fixed`: what the
+/// gained views give without the estimation; the gain and albedo bounds are then not asserted).
+#[test]
+#[ignore = "needs OPAL_CBOX_DIR (the Mitsuba 3 reference data set); ~1–2 min"]
+fn mitsuba_cbox_view_gains_acceptance() {
+    let dir = PathBuf::from(std::env::var("OPAL_CBOX_DIR").expect("set OPAL_CBOX_DIR"));
+    let desc = load(&dir.join("scene.xml"));
+    let (mut views, warn) = read_views(&dir.join("transforms.json")).unwrap();
+    assert!(warn.is_empty(), "{warn:?}");
+    let truth_gains = known_gains();
+    apply_known_gains(&mut views, &truth_gains);
+    let mode = match std::env::var("OPAL_VIEW_GAINS").as_deref() {
+        Ok("fixed") => ViewGainMode::Fixed,
+        Ok("exposure") => ViewGainMode::Exposure,
+        Ok("exposure+wb") | Err(_) => ViewGainMode::ExposureWb,
+        Ok(other) => panic!("OPAL_VIEW_GAINS: unknown mode {other}"),
+    };
+    let paths: u64 =
+        std::env::var("OPAL_DELIGHT_PATHS").ok().and_then(|v| v.parse().ok()).unwrap_or(20_000_000);
+    let s = DelightSettings {
+        light_paths: paths,
+        iterations: 5,
+        tolerance: 0.0,
+        view_gains: ViewGainSettings { mode, ..Default::default() },
+        ..Default::default()
+    };
+    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
+    let worst = report(&r, &desc);
+    let truth = opal::image::read::read_image(&dir.join("textures/backwall_albedo.exr")).unwrap();
+    let (psnr, n) = backwall_psnr(&r, &truth);
+    println!("warnings {:?}", r.warnings);
+    println!(
+        "mode {}: back wall PSNR {psnr:.2} dB over {n} texels; worst constant-object error {:.2} %",
+        mode.name(),
+        100.0 * worst
+    );
+    if mode == ViewGainMode::ExposureWb {
+        let gerr = gain_errors(&r, &truth_gains);
+        println!("worst gain error {:.3} %", 100.0 * gerr);
+        assert!(gerr < 0.005, "acceptance: gains within 0.5 %: worst {gerr}");
+        assert!(worst < 0.01, "acceptance: mean albedo within 1 %: worst {worst}");
+        assert!(psnr >= 38.0, "acceptance: back wall PSNR ≥ 38 dB: {psnr}");
+    }
 }

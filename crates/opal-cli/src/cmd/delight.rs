@@ -11,8 +11,8 @@ use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
-    DelightResult, DelightSettings, ObjectResult, StageClock, UpdateRule, delight, object_masks,
-    recovered_desc, region_stats,
+    DelightResult, DelightSettings, ObjectResult, StageClock, UpdateRule, ViewGainMode, ViewGainSettings,
+    apply_view_gains, delight, object_masks, recovered_desc, region_stats,
 };
 use serde_json::json;
 use std::fmt::Write as _;
@@ -68,6 +68,15 @@ pub struct DelightArgs {
     /// variation (the earlier default, then use `--tv-lambda 0.0067`), default 0.5.
     #[arg(long)]
     pub tv_exponent: Option<f32>,
+    /// Per-view photometric gains estimated from the overlap of the views: `fixed` (the views
+    /// are exact), `exposure` (one factor per view) or `exposure+wb` (one per view and channel).
+    /// Scale convention: the median view is exact.
+    #[arg(long, default_value = "fixed")]
+    pub view_gains: String,
+    /// Warn about (and flag) a view whose estimated gain differs from the median view's by more
+    /// than this factor.
+    #[arg(long, default_value_t = 1.5)]
+    pub gain_warn_ratio: f64,
     /// Seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -220,6 +229,15 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         "backproject" => None,
         other => bail!("--luminance must be superres or backproject, got '{other}'"),
     };
+    let mode = match a.view_gains.as_str() {
+        "fixed" => ViewGainMode::Fixed,
+        "exposure" => ViewGainMode::Exposure,
+        "exposure+wb" => ViewGainMode::ExposureWb,
+        other => bail!("--view-gains must be fixed, exposure or exposure+wb, got '{other}'"),
+    };
+    if !(a.gain_warn_ratio.is_finite() && a.gain_warn_ratio > 1.0) {
+        bail!("--gain-warn-ratio must be a number > 1, got {}", a.gain_warn_ratio);
+    }
     let settings = DelightSettings {
         objects: a.objects.clone(),
         iterations: a.iterations,
@@ -230,10 +248,16 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         keep_uvs: !a.unwrap_all,
         update,
         superres,
+        view_gains: ViewGainSettings { mode, warn_ratio: a.gain_warn_ratio },
         debug: debug_from_env(),
         ..Default::default()
     };
     let r = delight(&desc, &views, &settings, log)?;
+    // photos and re-renders are compared on the views divided by their estimated gains
+    let views = match &r.view_gains {
+        Some(g) => apply_view_gains(&views, g),
+        None => views,
+    };
     write_outputs(a, &desc, &views, &r, &vwarn, log)
 }
 
@@ -452,9 +476,21 @@ fn write_outputs(
         timings.insert(name.into(), json!(w));
         cpu.insert(name.into(), json!(c));
     }
+    let finite = |x: f64| if x.is_finite() { json!(x) } else { json!(null) };
+    let view_gains = r.view_gains.as_ref().map(|g| {
+        json!({
+            "mode": g.mode.name(),
+            "convention": "median view exact (per channel)",
+            "views": g.views.iter().map(|v| json!({
+                "view": v.view, "gain": v.gain, "std_err": v.std_err.map(finite),
+                "samples": v.samples, "far_from_others": v.far,
+            })).collect::<Vec<_>>(),
+        })
+    });
     let report = json!({
         "scene": a.scene, "views": a.views, "n_views": views.len(),
-        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance},
+        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio},
+        "view_gains": view_gains,
         "converged": r.converged,
         "iterations": its,
         "objects": objs,
@@ -515,7 +551,32 @@ fn html(r: &serde_json::Value) -> String {
             o["texture"].as_str().unwrap_or("").replace(".exr", ".png")
         );
     }
-    s.push_str("</table><h2>Regions: photo vs re-render</h2><table><tr><th>view</th><th>object</th><th>px</th><th>mean L</th><th>L RMS</th><th>RGB</th><th>CIE xy</th><th>rel. err.</th></tr>");
+    s.push_str("</table>");
+    if let Some(g) = r["view_gains"].as_object() {
+        let _ = write!(
+            s,
+            "<h2>View gains ({}, median view exact)</h2><table><tr><th>view</th><th>gain R G B</th><th>± std. err.</th><th>samples</th><th>far</th></tr>",
+            g["mode"].as_str().unwrap_or("")
+        );
+        for v in g["views"].as_array().into_iter().flatten() {
+            let f = |x: &serde_json::Value, c: usize| x[c].as_f64().unwrap_or(f64::NAN);
+            let _ = write!(
+                s,
+                "<tr><td>{}</td><td>{:.4} {:.4} {:.4}</td><td>{:.4} {:.4} {:.4}</td><td>{}</td><td>{}</td></tr>",
+                v["view"].as_str().unwrap_or(""),
+                f(&v["gain"], 0),
+                f(&v["gain"], 1),
+                f(&v["gain"], 2),
+                f(&v["std_err"], 0),
+                f(&v["std_err"], 1),
+                f(&v["std_err"], 2),
+                v["samples"],
+                if v["far_from_others"].as_bool() == Some(true) { "yes" } else { "" }
+            );
+        }
+        s.push_str("</table>");
+    }
+    s.push_str("<h2>Regions: photo vs re-render</h2><table><tr><th>view</th><th>object</th><th>px</th><th>mean L</th><th>L RMS</th><th>RGB</th><th>CIE xy</th><th>rel. err.</th></tr>");
     for g in r["regions"].as_array().into_iter().flatten() {
         for (k, who) in [("photo", "photo"), ("rerender", "re-render")] {
             let p = &g[k];
@@ -612,6 +673,8 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         luminance: "superres".into(),
         tv_lambda: None,
         tv_exponent: None,
+        view_gains: "fixed".into(),
+        gain_warn_ratio: 1.5,
         seed: 0,
         threads: None,
         json: false,

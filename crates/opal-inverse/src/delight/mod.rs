@@ -5,7 +5,9 @@
 //! Pipeline ([`delight`]):
 //! 1. atlas per object ([`atlas`]: own UVs when usable, else planar charts + shelf packing),
 //!    resolution from [`atlas::auto_resolution`] unless given;
-//! 2. luminance map `L`: every covered texel is projected into every view; a view counts when
+//! 2. (unless [`ViewGainMode::Fixed`]) per-view gains (exposure, white balance) from the
+//!    overlap of the views ([`gains`]); the views are divided by them before everything below;
+//!    luminance map `L`: every covered texel is projected into every view; a view counts when
 //!    the texel faces it, lies in its frustum, the segment to the camera is unoccluded and the
 //!    bilinear taps are "pure" pixels of the same shape and plane ([`views::pure_buffer`]);
 //!    views are averaged with cos θ (surface normal · direction to the camera) weights; after
@@ -42,6 +44,7 @@
 
 pub mod atlas;
 mod direct;
+pub mod gains;
 pub mod inpaint;
 mod observe;
 mod pipeline;
@@ -52,6 +55,7 @@ mod timing;
 pub mod views;
 
 pub use direct::{MAX_LIGHTS_PER_TEXEL, PENUMBRA_DILATION, direct_irradiance};
+pub use gains::{ViewGain, ViewGainMode, ViewGainSettings, ViewGains, apply_view_gains};
 pub use observe::{RegionStats, luminance_map, object_masks, pixel_ray, region_stats};
 pub use pipeline::{delight, smooth_in_charts};
 pub use result::{DelightResult, IterationStats, ObjectResult};

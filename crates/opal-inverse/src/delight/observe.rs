@@ -32,57 +32,14 @@ pub fn luminance_map(
             if a.texel_tri[i] == NO_TRI {
                 return ([0.0; 3], false);
             }
-            let (p, ng) = (a.texel_p[i], a.texel_ng[i]);
-            let ns = a.texel_n[i];
             let mut acc = [0f64; 3];
             let mut wsum = 0f64;
             for (v, pb) in views.iter().zip(pure) {
-                let cam = &v.camera;
-                let to_cam = cam.origin() - p;
-                let dist = to_cam.length();
-                let dir = to_cam / dist;
-                let cos = ns.dot(dir);
-                if cos <= 0.0 || ng.dot(dir) <= 0.0 {
+                let Some(ViewSample { sum: val, weight: wt, cos, .. }) =
+                    view_sample(scene, shape, a, i, v, pb)
+                else {
                     continue;
-                }
-                let Some(px) = cam.project(p) else { continue };
-                let shadow = spawn_ray_to(p, ng, cam.origin(), Vec3::ZERO);
-                if scene.occluded(&shadow) {
-                    continue;
-                }
-                // bilinear taps on pure pixels of this shape and plane
-                let x = px.x - 0.5;
-                let y = px.y - 0.5;
-                let (x0, y0) = (x.floor(), y.floor());
-                let (fx, fy) = (x - x0, y - y0);
-                let mut val = [0f64; 3];
-                let mut wt = 0f64;
-                for (dx, dy, w) in [
-                    (0, 0, (1.0 - fx) * (1.0 - fy)),
-                    (1, 0, fx * (1.0 - fy)),
-                    (0, 1, (1.0 - fx) * fy),
-                    (1, 1, fx * fy),
-                ] {
-                    let (xi, yi) = (x0 as i64 + dx, y0 as i64 + dy);
-                    if xi < 0 || yi < 0 || xi >= cam.width as i64 || yi >= cam.height as i64 || w <= 0.0 {
-                        continue;
-                    }
-                    let k = yi as usize * cam.width + xi as usize;
-                    if pb.shape[k] != shape || pb.normal[k].dot(ng) < 0.999 {
-                        continue;
-                    }
-                    let c = v.image.data[k];
-                    if !c.is_finite() {
-                        continue;
-                    }
-                    for ch in 0..3 {
-                        val[ch] += w as f64 * c[ch] as f64;
-                    }
-                    wt += w as f64;
-                }
-                if wt < 0.5 {
-                    continue;
-                }
+                };
                 let wv = cos as f64;
                 for ch in 0..3 {
                     acc[ch] += wv * val[ch] / wt;
@@ -93,6 +50,80 @@ pub fn luminance_map(
         })
         .collect();
     res.into_iter().unzip()
+}
+
+/// One view's sample of a texel ([`view_sample`]).
+pub(crate) struct ViewSample {
+    /// `Σ w·rgb` over the usable bilinear taps.
+    pub sum: [f64; 3],
+    /// `Σ w` (the texel's radiance in this view is `sum / weight`).
+    pub weight: f64,
+    /// Shading normal · direction to the camera.
+    pub cos: f32,
+    /// (min, max) luminance of the usable taps.
+    pub tap_range: (f32, f32),
+}
+
+/// One view's sample of texel `i` (step 2) over the bilinear taps that fall on pure pixels of
+/// `shape` and the texel's plane, or `None` when the texel faces away, leaves the frustum, is
+/// occluded, or fewer than half the tap weight is usable.
+pub(crate) fn view_sample(
+    scene: &Scene,
+    shape: u32,
+    a: &Atlas,
+    i: usize,
+    v: &View,
+    pb: &PureBuffer,
+) -> Option<ViewSample> {
+    let (p, ng) = (a.texel_p[i], a.texel_ng[i]);
+    let ns = a.texel_n[i];
+    let cam = &v.camera;
+    let to_cam = cam.origin() - p;
+    let dist = to_cam.length();
+    let dir = to_cam / dist;
+    let cos = ns.dot(dir);
+    if cos <= 0.0 || ng.dot(dir) <= 0.0 {
+        return None;
+    }
+    let px = cam.project(p)?;
+    let shadow = spawn_ray_to(p, ng, cam.origin(), Vec3::ZERO);
+    if scene.occluded(&shadow) {
+        return None;
+    }
+    // bilinear taps on pure pixels of this shape and plane
+    let x = px.x - 0.5;
+    let y = px.y - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let mut val = [0f64; 3];
+    let mut wt = 0f64;
+    let mut range = (f32::INFINITY, f32::NEG_INFINITY);
+    for (dx, dy, w) in
+        [(0, 0, (1.0 - fx) * (1.0 - fy)), (1, 0, fx * (1.0 - fy)), (0, 1, (1.0 - fx) * fy), (1, 1, fx * fy)]
+    {
+        let (xi, yi) = (x0 as i64 + dx, y0 as i64 + dy);
+        if xi < 0 || yi < 0 || xi >= cam.width as i64 || yi >= cam.height as i64 || w <= 0.0 {
+            continue;
+        }
+        let k = yi as usize * cam.width + xi as usize;
+        if pb.shape[k] != shape || pb.normal[k].dot(ng) < 0.999 {
+            continue;
+        }
+        let c = v.image.data[k];
+        if !c.is_finite() {
+            continue;
+        }
+        for ch in 0..3 {
+            val[ch] += w as f64 * c[ch] as f64;
+        }
+        wt += w as f64;
+        let y = luminance(c.0);
+        range = (range.0.min(y), range.1.max(y));
+    }
+    if wt < 0.5 {
+        return None;
+    }
+    Some(ViewSample { sum: val, weight: wt, cos, tap_range: range })
 }
 
 /// Statistics of an image region (the paper's tables 1–3).

@@ -255,6 +255,34 @@ pub fn delight(
     // 2–3. luminance maps
     let t0 = StageClock::start();
     let pure: Vec<PureBuffer> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
+    // per-view gains from the overlap of the views; every later step sees the corrected views
+    let mut view_gains = None;
+    let corrected: Option<Vec<View>> = if s.view_gains.mode != ViewGainMode::Fixed {
+        let tg = StageClock::start();
+        let objs: Vec<(u32, &Atlas)> = objects.iter().map(|o| (o.shape as u32, &o.atlas)).collect();
+        let (g, w) = gains::estimate_view_gains(&scene, &objs, views, &pure, &s.view_gains);
+        for vg in &g.views {
+            log(&format!(
+                "gain {}: {:.4} {:.4} {:.4} (± {:.4} {:.4} {:.4}, {} samples)",
+                vg.view,
+                vg.gain[0],
+                vg.gain[1],
+                vg.gain[2],
+                vg.std_err[0],
+                vg.std_err[1],
+                vg.std_err[2],
+                vg.samples
+            ));
+        }
+        warnings.extend(w);
+        let c = apply_view_gains(views, &g);
+        view_gains = Some(g);
+        timings.push("gains", tg.elapsed());
+        Some(c)
+    } else {
+        None
+    };
+    let views: &[View] = corrected.as_deref().unwrap_or(views);
     let (slo, shi) = scene.bounds();
     let diag = (shi - slo).length();
     let emit_boxes: Vec<(Vec3, Vec3)> = scene
@@ -580,7 +608,17 @@ pub fn delight(
     timings.push("iteration_post", (post_wall, post_cpu));
     timings.push("total", t_all.elapsed());
     let Timings { wall: timings, cpu: cpu_timings } = timings;
-    Ok(DelightResult { objects, skipped, iterations, converged, warnings, timings, cpu_timings, light_paths })
+    Ok(DelightResult {
+        objects,
+        skipped,
+        iterations,
+        converged,
+        view_gains,
+        warnings,
+        timings,
+        cpu_timings,
+        light_paths,
+    })
 }
 
 /// Seen fraction, median filter next to emitters and inpainting of the holes of a new luminance

@@ -1,9 +1,10 @@
 //! Results of the de-lighting: per recovered object its atlas and maps ([`ObjectResult`]),
 //! per iteration the error statistics ([`IterationStats`]), and the whole run
-//! ([`DelightResult`]: objects, skipped objects, warnings, stage timings).
+//! ([`DelightResult`]: objects, skipped objects, estimated view gains, warnings, stage timings).
 //! Tests: `tests/delight.rs` (round trip through [`ObjectResult::mean_kd_observed`]).
 
 use super::atlas::{Atlas, NO_TRI};
+use super::gains::ViewGains;
 use super::to_image;
 use opal::image::Image;
 
@@ -105,7 +106,10 @@ pub struct DelightResult {
     pub iterations: Vec<IterationStats>,
     /// The error fell below the tolerance.
     pub converged: bool,
-    /// Warnings (unseen objects, masked pixels...).
+    /// Estimated per-view gains (`None` with [`super::ViewGainMode::Fixed`]); the recovered
+    /// albedos are those of the views divided by them.
+    pub view_gains: Option<ViewGains>,
+    /// Warnings (unseen objects, masked pixels, views whose gain is far from the others...).
     pub warnings: Vec<String>,
     /// Wall seconds per stage: (name, seconds).
     pub timings: Vec<(String, f64)>,

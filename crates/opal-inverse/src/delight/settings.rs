@@ -1,8 +1,9 @@
 //! Settings of the de-lighting ([`DelightSettings`]): iterations and tolerance, light paths,
 //! atlas resolution, direct-irradiance sampling, the indirect update rule ([`UpdateRule`]), the
-//! super-resolution settings and the debug outputs ([`DebugSettings`], off by default).
+//! super-resolution settings, the per-view gains ([`ViewGainSettings`]) and the debug outputs ([`DebugSettings`], off by default).
 //! Tests: `tests/delight.rs` and the CLI's `opal delight` tests (through [`super::delight`]).
 
+use super::gains::ViewGainSettings;
 use super::superres;
 
 /// How the indirect irradiance is updated between light-tracing passes.
@@ -48,6 +49,9 @@ pub struct DelightSettings {
     pub smooth: Option<usize>,
     /// Multi-view super-resolved luminance maps ([`superres`]); `None` = back-projection only.
     pub superres: Option<superres::SrSettings>,
+    /// Per-view photometric gains (exposure, white balance) estimated from the overlap of the
+    /// views; default: none (the views are exact).
+    pub view_gains: ViewGainSettings,
     /// Debug and error-analysis outputs (all off by default).
     pub debug: DebugSettings,
 }
@@ -84,6 +88,7 @@ impl Default for DelightSettings {
             update: UpdateRule::FixedPoint,
             smooth: None,
             superres: Some(superres::SrSettings::default()),
+            view_gains: ViewGainSettings::default(),
             debug: DebugSettings::default(),
         }
     }
