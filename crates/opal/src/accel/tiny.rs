@@ -7,7 +7,7 @@
 //! watertight test of [`super::triangle`] on a whole group at once (the lane loops compile to
 //! 8-wide AVX intrinsics when the CPU has AVX2 — detected once, [`crate::simd`] — and to
 //! portable lane loops otherwise). The group kernel is shared with the BVH's leaves
-//! ([`super::group`]).
+//! (`super::group`).
 //!
 //! **Same results as [`super::TriRay`]**: the per-ray shear is applied in the paper's form
 //! `a_kx − S_x a_kz` (Woop et al. 2013), which rounds exactly like `TriRay`'s dot products with

@@ -2,10 +2,10 @@
 //! eight triangles tested at once, ordered closest-hit and any-hit traversal (AVX2, with a
 //! portable fallback that gives the same hits).
 //!
-//! * **Build** ([`build`]): a binary tree by binned SAH with leaf *blocks* of eight triangles,
-//!   then collapsed into 8-wide nodes ([`collapse`]): each node repeatedly opens its
+//! * **Build** (`build.rs`): a binary tree by binned SAH with leaf *blocks* of eight triangles,
+//!   then collapsed into 8-wide nodes (`collapse`): each node repeatedly opens its
 //!   largest-area interior child until it has 8 children. Leaves hold at most eight triangles,
-//!   stored as one [`Group`] (structure of arrays, the kernel of [`crate::accel::group`]).
+//!   stored as one `Group` (structure of arrays, the kernel of `crate::accel::group`).
 //! * **Layout**: 256-byte nodes (four cache lines) holding the 8 children's boxes as
 //!   `b[lo/hi][axis][lane]` — one 32-byte row per plane, so the slab test of the 8 boxes is
 //!   six aligned loads — and per child a reference: an interior node index, a leaf group

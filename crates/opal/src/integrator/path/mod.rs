@@ -17,22 +17,21 @@
 //! Structure: one path vertex is `vertex` (emission found, next-event sample, BSDF sample,
 //! Russian roulette); it returns the shadow ray and its contribution instead of tracing it, so
 //! the caller may batch shadow rays. [`li`] traces one path with single rays. [`render`] picks,
-//! per scene, how a row is traced:
-//! * tiny scenes ([`Accel::Tiny`], the Cornell box): `render_row_wavefront`, eight *pixels* in
-//!   the eight lanes of a [`RayPacket`]; each lane runs its pixel's samples in order with the
-//!   pixel's own generator and takes the row's next pixel when done. The lanes' rays go through
-//!   [`Accel::intersect8`] together (rays in the SIMD lanes: ≈ 2.3× fewer ns per ray than
-//!   single rays there), then the pending shadow rays as a second packet (a hit before `tmax`
-//!   = occluded; the same answer as [`Scene::occluded`]). Each pixel draws the same numbers in
-//!   the same order and adds the same terms in the same order as with [`li`], so the image is
-//!   **bit for bit** that of the scalar loop (checked with `cmp` of the pixels).
-//! * BVH scenes: `render_row_scalar`, a pixel at a time with [`li`]. The BVH's `intersect8`
-//!   interleaves eight traversals (a large gain for incoherent rays on meshes beyond the caches),
-//!   but on the scanned-object room (82 k triangles, 256², 64 spp, depth 16) this row wavefront
-//!   measured 4.53–4.73 vs 4.16–4.36 CPU-s for single rays (3 interleaved runs each): camera
-//!   paths are coherent and the tree fits the cache.
+//! per scene, how a row is traced (`RowPlan`; every plan gives the same image bit for bit):
+//! * all-diffuse scenes lit by emitting triangles (the Cornell box, scanned objects with
+//!   textures), whatever their size: `wavefront::render_row` — eight *pixels* in the eight
+//!   lanes of a packet, each lane running its pixel's samples in order with the pixel's own
+//!   generator; the lanes' rays go through [`Accel::intersect8`] together (packet kernel on tiny
+//!   scenes, eight interleaved BVH traversals otherwise), then their shadow rays through
+//!   [`Accel::occluded8`], and the eight vertices are shaded at once by the lane-parallel kernel
+//!   of `wide` (the scalar vertex's IEEE operations in its order: the same bits);
+//! * other tiny scenes: the same wavefront with `vertex` lane by lane;
+//! * other BVH scenes: `render_row_scalar`, a pixel at a time with [`li`] (the row wavefront with
+//!   the scalar vertex measured slower there: 4.53–4.73 vs 4.16–4.36 CPU-s on the scanned-object
+//!   room, when it still traced single rays).
 //!
-//! Tests: `tests/furnace.rs` (furnace: a closed Lambertian room of albedo ρ and radiance Le has
+//! Tests: `tests.rs` (every wavefront plan against the scalar rows, bit for bit, on the Cornell
+//! box and on a textured mesh behind the BVH); `tests/furnace.rs` (furnace: a closed Lambertian room of albedo ρ and radiance Le has
 //! radiance Le/(1−ρ) everywhere, also with lossless glass objects inside; agreement with Mitsuba 3 on the reference Cornell box by
 //! z-tests on 16×16 blocks; thread-count independence), `opal-cli/tests/render_cli.rs`.
 
