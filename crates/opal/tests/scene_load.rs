@@ -915,3 +915,20 @@ fn rough_dielectric_plugin() {
         assert!(e.contains(want) && e.contains("scene.xml:"), "{body}: {e}");
     }
 }
+
+/// Zero-area triangles (common in scans) are kept but reported: one warning per shape with
+/// their count; a clean mesh gives none.
+#[test]
+fn zero_area_triangles_are_reported() {
+    let mut d = ok(r#"<shape type="rectangle" id="panel"><bsdf type="diffuse"/></shape>"#);
+    assert!(opal::scene::Scene::build(&d).unwrap().warnings.is_empty());
+    let m = &mut d.shapes[0].mesh;
+    let p = m.positions[0];
+    m.positions.push(p);
+    let n = m.positions.len() as u32;
+    m.indices.push([0, n - 1, 1]); // two corners at the same point
+    let scene = opal::scene::Scene::build(&d).unwrap();
+    assert_eq!(scene.warnings.len(), 1, "{:?}", scene.warnings);
+    let w = &scene.warnings[0];
+    assert!(w.contains("panel") && w.contains("1 of 3 triangles") && w.contains("zero area"), "{w}");
+}

@@ -83,6 +83,7 @@ impl Scene {
         let mut shapes = Vec::new();
         let mut lo = Vec3::splat(f32::MAX);
         let mut hi = Vec3::splat(f32::MIN);
+        let mut warnings = Vec::new();
         for (si, s) in desc.shapes.iter().enumerate() {
             let m = &s.mesh;
             if m.indices.is_empty() {
@@ -120,12 +121,15 @@ impl Scene {
                 }
             }
             let first_prim = tris.len() as u32;
+            let mut degenerate = 0usize;
             for k in 0..m.triangle_count() {
                 let tri = m.triangle(k);
                 let prim = tris.len() as u32;
                 tris.push(tri);
                 prim_shape.push(si as u32);
-                prim_ng.push((tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize());
+                let c = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+                degenerate += (c.length_squared() == 0.0) as usize;
+                prim_ng.push(c.normalize());
                 let mut light_idx = NO_LIGHT;
                 if let Some(le) = emission {
                     if let Some(tl) = TriangleLight::new(tri, le, prim) {
@@ -134,6 +138,14 @@ impl Scene {
                     }
                 }
                 prim_light.push(light_idx);
+            }
+            if degenerate > 0 {
+                // scans often carry a few: rays never hit them (the watertight test's det is 0)
+                warnings.push(format!(
+                    "shape '{}': {degenerate} of {} triangles have zero area (never hit, ignored)",
+                    s.id,
+                    m.triangle_count()
+                ));
             }
             shapes.push(Shape { id: s.id.clone(), mesh: m.clone(), material, emission, first_prim });
         }
@@ -180,7 +192,7 @@ impl Scene {
             lights,
             cameras,
             integrator: desc.integrator.clone().unwrap_or_default(),
-            warnings: Vec::new(),
+            warnings,
             accel,
             prim_shape,
             prim_light,
