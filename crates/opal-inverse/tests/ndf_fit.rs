@@ -4,7 +4,7 @@
 use opal::bsdf::microfacet::{Ndfs, Profile};
 use opal::gonio::{Beam, DetectorGrid, DetectorLayout, Face, Gonio, GonioSetup, Plate, Scattering};
 use opal_inverse::measured::Measured;
-use opal_inverse::ndf_fit::{Family, FitOn, FitOptions, FitReport, FitSetup, Problem, fit};
+use opal_inverse::ndf_fit::{Family, FitOn, FitOptions, FitReport, FitSetup, Problem, ScaleSetup, fit};
 use std::path::Path;
 
 fn setup(rough_front: bool, photons: u64) -> FitSetup {
@@ -30,6 +30,8 @@ fn setup(rough_front: bool, photons: u64) -> FitSetup {
         floor_rel: 1e-2,
         max_iters: 40,
         coarse_photons: FitSetup::default_coarse(photons),
+        scale: ScaleSetup::default(),
+        rel_error: 0.0,
     }
 }
 
