@@ -486,6 +486,11 @@ impl Problem {
             let k = Self::factor(&fit, p.group);
             let (s, ss) = (k * r.value[p.det], k * r.value_stderr[p.det]);
             acc += ((s - p.m).powi(2) - ss * ss) / p.m;
+            if p.group.is_some() {
+                // the 1/m weight's bias (see `scale`): without it the factors come out low by
+                // the mean relative variance of the measured points
+                acc -= 2.0 * (s - p.m) * (p.sm / p.m).powi(2);
+            }
             wsum += p.m;
         }
         if fit.penalty > 0.0 {

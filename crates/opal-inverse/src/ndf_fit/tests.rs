@@ -119,14 +119,14 @@ fn mode(mode: ScaleMode) -> ScaleSetup {
     ScaleSetup { mode, prior: None }
 }
 
-/// dG/dk of group g at the factors of `fit` (G = Σ ((k s − m)² − k² σs²)/m): zero at the
-/// closed-form optimum.
+/// dG/dk of group g at the factors of `fit` (G = Σ ((k s − m)² − k² σs²)/m − 2 (k s − m) r²):
+/// zero at the closed-form optimum.
 fn gradient(p: &Problem, res: &GonioResult, fit: &ScaleFit, g: usize) -> (f64, f64) {
     let (mut d, mut norm) = (0.0, 0.0);
     for pt in p.points.iter().filter(|pt| pt.group == Some(g)) {
         let r = &res.incidences[pt.inc];
         let (s, ss, k) = (r.value[pt.det], r.value_stderr[pt.det], fit.factors[g]);
-        d += 2.0 * ((k * s - pt.m) * s - k * ss * ss) / pt.m;
+        d += 2.0 * ((k * s - pt.m) * s - k * ss * ss) / pt.m - 2.0 * s * (pt.sm / pt.m).powi(2);
         norm += 2.0 * s;
     }
     (d, norm)
@@ -152,7 +152,8 @@ fn closed_form_factor_is_the_minimum() {
                 let (mut acc, mut w) = (0.0, 0.0);
                 for pt in &p.points {
                     let r = &scaled.incidences[pt.inc];
-                    acc += ((r.value[pt.det] - pt.m).powi(2) - r.value_stderr[pt.det].powi(2)) / pt.m;
+                    let e = r.value[pt.det] - pt.m;
+                    acc += (e * e - r.value_stderr[pt.det].powi(2)) / pt.m - 2.0 * e * (pt.sm / pt.m).powi(2);
                     w += pt.m;
                 }
                 assert!(acc / w > obj, "{m:?} group {g} ×{h}: {} ≤ {obj}", acc / w);
