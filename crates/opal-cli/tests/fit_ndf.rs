@@ -230,8 +230,8 @@ fn bad_scale_flags_exit_2() {
     for (args, needle) in [
         (&["--scale", "relative"][..], "--scale: must be absolute, global, per-incidence or per-curve"),
         (&["--scale-prior", "0.05"][..], "--scale-prior: needs --scale"),
-        (&["--scale", "global", "--scale-prior", "-1"][..], "--scale-prior: must be"),
-        (&["--rel-error", "-0.1"][..], "--rel-error: must be in [0, 1)"),
+        (&["--scale", "global", "--scale-prior=-1"][..], "--scale-prior: must be"),
+        (&["--rel-error=-0.1"][..], "--rel-error: must be in [0, 1)"),
     ] {
         let out = d.path().join("o");
         let o = opal().arg("fit-ndf").arg(&csv).args(args).arg("-o").arg(&out).output().unwrap();
@@ -242,10 +242,13 @@ fn bad_scale_flags_exit_2() {
     }
 }
 
+/// ((incidence, side) as in the file, the curve's maximum) of every curve.
+type Peaks = Vec<((String, String), f64)>;
+
 /// The demo measurement with every curve divided by its maximum and no value_stderr column
 /// (relative data as many instruments give it); returns the CSV text and each curve's maximum
 /// by (incidence, side).
-fn normalised_demo() -> (String, Vec<((String, String), f64)>) {
+fn normalised_demo() -> (String, Peaks) {
     let text =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("data/fit_ndf_demo.csv")).unwrap();
     let rows: Vec<Vec<String>> = text
@@ -255,7 +258,7 @@ fn normalised_demo() -> (String, Vec<((String, String), f64)>) {
         .collect();
     let col = |n: &str| rows[0].iter().position(|c| c == n).unwrap();
     let (ci, cs, cd, cv) = (col("incidence_deg"), col("side"), col("detector_deg"), col("value"));
-    let mut max: Vec<((String, String), f64)> = Vec::new();
+    let mut max: Peaks = Vec::new();
     for r in &rows[1..] {
         let key = (r[ci].clone(), r[cs].clone());
         let v: f64 = r[cv].parse().unwrap();

@@ -21,6 +21,12 @@
 //! relative standard error `sqrt(σs² + σm²)/m` over the same points, so `rms / noise ≈ 1` means
 //! "fits within noise".
 //!
+//! Calibration ([`ScaleMode`], module `scale`): measured values in relative units or with an
+//! uncertain calibration are modelled as factor × simulated, one factor for the file, per
+//! incidence or per curve; for given NDF parameters the best factors are closed-form, so every
+//! evaluation profiles them out without extra simulations (optionally with a Gaussian prior
+//! around 1). `FitSetup::rel_error` is the noise model of files without standard errors.
+//!
 //! Smoothness: every evaluation uses the same seed (common random numbers: photon j of
 //! incidence i always draws from `Rng::new(seed, i, j)`), so the objective varies smoothly with
 //! the parameters instead of jumping by the Monte-Carlo noise (the numeric NDFs' rejection
@@ -47,9 +53,10 @@
 //! standard errors, c the correlation inflation of overlapping detectors); derivation in
 //! docs/fit-ndf.md.
 //!
-//! Tests: `tests.rs` (models, coordinates, quantiles); `crates/opal-inverse/tests/ndf_fit.rs`
-//! (one Mitsuba reference case in the default tier; all six and the Student-t, shift,
-//! multiple-scattering and hybrid round trips `#[ignore]`d, commands in docs/testing.md).
+//! Tests: `tests.rs` (models, coordinates, quantiles, calibration factors);
+//! `crates/opal-inverse/tests/ndf_fit.rs` (one Mitsuba reference case and a scaled measurement
+//! in the default tier; all six and the Student-t, shift, multiple-scattering, hybrid and
+//! scaled round trips `#[ignore]`d, commands in docs/testing.md).
 
 mod auto;
 mod model;

@@ -45,8 +45,16 @@ impl FamilyFit {
     }
 }
 
-/// Calibration factors found at every fine-stage evaluation, by reported parameters.
-type ScaleLog = Mutex<Vec<(Vec<f64>, ScaleFit)>>;
+/// (stage, reported parameters, objective) of every evaluation.
+type History = Vec<(&'static str, Vec<f64>, f64)>;
+
+/// What the cost functions record: every evaluation (stage, reported parameters, objective)
+/// and the calibration factors of every fine-stage evaluation (by reported parameters).
+#[derive(Default)]
+struct EvalLog {
+    history: Mutex<History>,
+    scales: Mutex<Vec<(Vec<f64>, ScaleFit)>>,
+}
 
 impl Problem {
     /// Half width at half maximum (radians) of the transmitted lobe of the smallest incidence,
@@ -110,8 +118,7 @@ impl Problem {
     pub fn fit_family(&self, family: Family) -> opal::Result<FamilyFit> {
         let e0 = self.evaluations();
         let a0 = self.initial_alpha(family)?;
-        let history = Mutex::new(Vec::new());
-        let scales = Mutex::new(Vec::new());
+        let log = EvalLog::default();
         let start = Model::new(family, a0);
         let mut model = start.clone();
         let mut converged = true;
@@ -122,12 +129,12 @@ impl Problem {
             &[(Stage::Fine, 1.8, 1e-3)]
         };
         for &(stage, span, tol) in stages {
-            let (x, fx, ok) = self.brent(&model, stage, span.ln(), tol, &history, &scales)?;
+            let (x, fx, ok) = self.brent(&model, stage, span.ln(), tol, &log)?;
             model.alpha = x.exp();
             objective = fx;
             converged &= ok;
         }
-        let scale = self.scale_at(&model, scales)?;
+        let (scale, history) = self.scale_at(&model, log)?;
         Ok(FamilyFit {
             alpha_initial: a0,
             model,
@@ -135,7 +142,7 @@ impl Problem {
             evaluations: self.evaluations() - e0,
             converged,
             scale,
-            history: history.into_inner().expect("no panic while recording"),
+            history,
         })
     }
 
@@ -147,17 +154,15 @@ impl Problem {
         stage: Stage,
         span: f64,
         tol: f64,
-        history: &Mutex<Vec<(&'static str, Vec<f64>, f64)>>,
-        scales: &ScaleLog,
+        log: &EvalLog,
     ) -> opal::Result<(f64, f64, bool)> {
         let mut center = start.alpha.ln();
         let mut best = (center, f64::INFINITY);
         let mut converged = false;
         for _round in 0..4 {
             let (lo, hi) = (center - span, center + span);
-            let cost = Cost1 {
-                inner: ParamCost { problem: self, start, coords: &[Coord::LnAlpha], stage, history, scales },
-            };
+            let cost =
+                Cost1 { inner: ParamCost { problem: self, start, coords: &[Coord::LnAlpha], stage, log } };
             let solver = BrentOpt::new(lo, hi).set_tolerance(0.0, tol);
             let res = Executor::new(cost, solver)
                 .configure(|s| s.max_iters(self.setup.max_iters))
@@ -197,8 +202,7 @@ impl Problem {
         stage: Stage,
         scale: f64,
         sd_tol: f64,
-        history: &Mutex<Vec<(&'static str, Vec<f64>, f64)>>,
-        scales: &ScaleLog,
+        log: &EvalLog,
     ) -> opal::Result<(Model, f64, bool)> {
         let x0: Vec<f64> = coords.iter().map(|c| c.get(start)).collect();
         let mut simplex = vec![x0.clone()];
@@ -209,7 +213,7 @@ impl Problem {
             x[i] = if x0[i] + s <= hi { x0[i] + s } else { (x0[i] - s).max(lo) };
             simplex.push(x);
         }
-        let cost = ParamCost { problem: self, start, coords, stage, history, scales };
+        let cost = ParamCost { problem: self, start, coords, stage, log };
         let solver = NelderMead::new(simplex)
             .with_sd_tolerance(sd_tol.max(0.0))
             .map_err(|e| opal::Error::invalid("optimiser", e.to_string()))?;
@@ -261,8 +265,7 @@ impl Problem {
 
     fn fit_coords(&self, start: &Model, coords: &[Coord], step_scale: f64) -> opal::Result<FamilyFit> {
         let e0 = self.evaluations();
-        let history = Mutex::new(Vec::new());
-        let scales = Mutex::new(Vec::new());
+        let log = EvalLog::default();
         let probe = self.simulate(start.ndf()?, self.setup.seed, self.stage_photons(Stage::Fine))?;
         let unit = self.objective_noise(&probe);
         let mut model = start.clone();
@@ -274,13 +277,12 @@ impl Problem {
             &[(Stage::Fine, step_scale, 1e-2)]
         };
         for &(stage, scale, tol) in stages {
-            let (m, fx, ok) =
-                self.nelder_mead(&model, coords, stage, scale, tol * unit, &history, &scales)?;
+            let (m, fx, ok) = self.nelder_mead(&model, coords, stage, scale, tol * unit, &log)?;
             model = m;
             objective = fx;
             converged &= ok;
         }
-        let scale = self.scale_at(&model, scales)?;
+        let (scale, history) = self.scale_at(&model, log)?;
         Ok(FamilyFit {
             alpha_initial: start.alpha,
             model,
@@ -288,23 +290,24 @@ impl Problem {
             evaluations: self.evaluations() - e0,
             converged,
             scale,
-            history: history.into_inner().expect("no panic while recording"),
+            history,
         })
     }
 
-    /// The calibration factors of the fine stage at `model`: from the evaluations' log (the
-    /// optimum was evaluated), else from one more simulation (none without factors).
-    fn scale_at(&self, model: &Model, log: ScaleLog) -> opal::Result<ScaleFit> {
+    /// The calibration factors of the fine stage at `model` (from the log: the optimum was
+    /// evaluated, else from one more simulation; none without factors) and the history.
+    fn scale_at(&self, model: &Model, log: EvalLog) -> opal::Result<(ScaleFit, History)> {
+        let history = log.history.into_inner().expect("no panic while recording");
         if self.groups.is_empty() {
-            return Ok(ScaleFit::none());
+            return Ok((ScaleFit::none(), history));
         }
         let x = model.param_values();
-        let log = log.into_inner().expect("no panic while recording");
-        if let Some((_, s)) = log.into_iter().rev().find(|(p, _)| *p == x) {
-            return Ok(s);
+        let scales = log.scales.into_inner().expect("no panic while recording");
+        if let Some((_, s)) = scales.into_iter().rev().find(|(p, _)| *p == x) {
+            return Ok((s, history));
         }
         let res = self.simulate(model.ndf()?, self.setup.seed, self.stage_photons(Stage::Fine))?;
-        Ok(self.fit_scale(&res))
+        Ok((self.fit_scale(&res), history))
     }
 }
 
@@ -313,8 +316,7 @@ struct ParamCost<'a> {
     start: &'a Model,
     coords: &'a [Coord],
     stage: Stage,
-    history: &'a Mutex<Vec<(&'static str, Vec<f64>, f64)>>,
-    scales: &'a ScaleLog,
+    log: &'a EvalLog,
 }
 
 impl CostFunction for ParamCost<'_> {
@@ -328,9 +330,9 @@ impl CostFunction for ParamCost<'_> {
             .map_err(|e| argmin::core::Error::msg(e.to_string()))?;
         let label = if self.stage == Stage::Coarse { "coarse" } else { "fine" };
         if self.stage == Stage::Fine && !scale.factors.is_empty() {
-            self.scales.lock().expect("no panic while recording").push((m.param_values(), scale));
+            self.log.scales.lock().expect("no panic while recording").push((m.param_values(), scale));
         }
-        self.history.lock().expect("no panic while recording").push((label, m.param_values(), f));
+        self.log.history.lock().expect("no panic while recording").push((label, m.param_values(), f));
         Ok(f + pen)
     }
 }
