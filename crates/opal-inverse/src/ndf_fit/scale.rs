@@ -9,7 +9,7 @@
 //! where the measured value fluctuated low, so without the correction the expected objective
 //! is minimised by a simulation low by ≈ r² at every point (E[(k s − m)²/m] has the term
 //! `2 (k s − μ) r²`, μ the mean measurement; the harmonic-mean bias of a Neyman χ²): the
-//! factors came out 0.2–1 % low on 400 000-photon synthetic curves. The correction's expectation
+//! factors came out 0.15–0.9 % low on 400 000-photon synthetic curves. The correction's expectation
 //! cancels that term, to first order in r². Per group `G(k) = A k² − 2 B k + const` with
 //! `A = Σ (s² − σs²)/m` and `B = Σ s (1 + r²)`, so the best factor is `k̂ = B / A` (when
 //! noise makes A ≤ 0, `A = Σ s²/m`). Absolute values keep today's objective (no correction). It is a linear estimate, `k̂ − k ≈ Σ c_p (m_p − k s_p)` with
