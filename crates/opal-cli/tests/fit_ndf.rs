@@ -222,3 +222,107 @@ fn student_with_shift_reports_every_parameter() {
         .unwrap();
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+#[test]
+fn bad_scale_flags_exit_2() {
+    let d = tempfile::tempdir().unwrap();
+    let csv = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/fit_ndf_demo.csv");
+    for (args, needle) in [
+        (&["--scale", "relative"][..], "--scale: must be absolute, global, per-incidence or per-curve"),
+        (&["--scale-prior", "0.05"][..], "--scale-prior: needs --scale"),
+        (&["--scale", "global", "--scale-prior=-1"][..], "--scale-prior: must be"),
+        (&["--rel-error=-0.1"][..], "--rel-error: must be in [0, 1)"),
+    ] {
+        let out = d.path().join("o");
+        let o = opal().arg("fit-ndf").arg(&csv).args(args).arg("-o").arg(&out).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: expected {needle:?} in {err}");
+        assert!(!out.join("fit.json").exists());
+    }
+}
+
+/// ((incidence, side) as in the file, the curve's maximum) of every curve.
+type Peaks = Vec<((String, String), f64)>;
+
+/// The demo measurement with every curve divided by its maximum and no value_stderr column
+/// (relative data as many instruments give it); returns the CSV text and each curve's maximum
+/// by (incidence, side).
+fn normalised_demo() -> (String, Peaks) {
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("data/fit_ndf_demo.csv")).unwrap();
+    let rows: Vec<Vec<String>> = text
+        .lines()
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .map(|l| l.split(',').map(|c| c.trim().to_string()).collect())
+        .collect();
+    let col = |n: &str| rows[0].iter().position(|c| c == n).unwrap();
+    let (ci, cs, cd, cv) = (col("incidence_deg"), col("side"), col("detector_deg"), col("value"));
+    let mut max: Peaks = Vec::new();
+    for r in &rows[1..] {
+        let key = (r[ci].clone(), r[cs].clone());
+        let v: f64 = r[cv].parse().unwrap();
+        match max.iter_mut().find(|m| m.0 == key) {
+            Some(m) => m.1 = m.1.max(v),
+            None => max.push((key, v)),
+        }
+    }
+    let mut out = String::from("incidence_deg,side,detector_deg,value\n");
+    for r in &rows[1..] {
+        let m = max.iter().find(|m| m.0 == (r[ci].clone(), r[cs].clone())).unwrap().1;
+        let v: f64 = r[cv].parse().unwrap();
+        out.push_str(&format!("{},{},{},{:e}\n", r[ci], r[cs], r[cd], v / m));
+    }
+    (out, max)
+}
+
+#[test]
+fn relative_measurement_fits_with_factors() {
+    // every curve normalised to 1 at its peak, no standard errors, a 3 % relative error per
+    // point: one factor per curve (measured = factor × simulated, so factor ≈ 1 / the curve's
+    // absolute maximum); few photons, so the bounds are loose (α within 10 % as in
+    // small_fit_writes_outputs, factors within 4 standard errors + 3 % of the truth)
+    let d = tempfile::tempdir().unwrap();
+    let (csv, max) = normalised_demo();
+    let p = d.path().join("relative.csv");
+    std::fs::write(&p, csv).unwrap();
+    let out = d.path().join("fit");
+    let o = opal()
+        .arg("fit-ndf")
+        .arg(&p)
+        .args(["--entry", "rough", "--family", "ggx", "--photons", "20000", "--scale", "per-curve"])
+        .args(["--rel-error", "0.03", "--no-render", "--json", "--quiet", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let a = j["alpha"].as_f64().unwrap();
+    assert!((a / 0.15 - 1.0).abs() < 0.1, "alpha {a}");
+    assert_eq!(j["scale"]["mode"], "per-curve");
+    assert_eq!(j["noise_model"]["file_stderr"], false);
+    assert_eq!(j["noise_model"]["rel_error"], 0.03);
+    let fs = j["scale"]["factors"].as_array().unwrap();
+    assert_eq!(fs.len(), max.len());
+    assert_eq!(j["scale"]["parameters"], fs.len());
+    assert_eq!(j["candidates"][0]["parameter_count"], 1 + fs.len());
+    for f in fs {
+        let (inc, side) = (f["incidence_deg"].as_f64().unwrap(), f["side"].as_str().unwrap());
+        let m = max.iter().find(|m| m.0.0.parse::<f64>().unwrap() == inc && m.0.1 == side).unwrap().1;
+        let (k, e) = (f["factor"].as_f64().unwrap() * m, f["stderr"].as_f64().unwrap() * m);
+        eprintln!("{inc}° {side}: factor × max {k:.4} ± {e:.4}");
+        assert!(e > 0.0 && (k - 1.0).abs() < 4.0 * e + 0.03, "{inc}° {side}: {k} ± {e}");
+    }
+    let ratio = j["rms_over_noise"].as_f64().unwrap();
+    eprintln!("rms/noise {ratio:.3}");
+    assert!(ratio.is_finite() && ratio < 1.5, "rms/noise {ratio}");
+    // the fitted curves are in the measurement's units (peaks near 1)
+    let fitted = std::fs::read_to_string(out.join("fitted_curves.csv")).unwrap();
+    let peak = fitted
+        .lines()
+        .skip(1)
+        .filter(|l| l.starts_with("0,T,"))
+        .map(|l| l.split(',').nth(5).unwrap().parse::<f64>().unwrap())
+        .fold(0.0, f64::max);
+    assert!((peak - 1.0).abs() < 0.1, "fitted peak {peak}");
+}

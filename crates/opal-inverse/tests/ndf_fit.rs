@@ -2,9 +2,11 @@
 //! (Student-t tail, shifted peak, multiple scattering, hybrid).
 
 use opal::bsdf::microfacet::{Ndfs, Profile};
-use opal::gonio::{Beam, DetectorGrid, DetectorLayout, Face, Gonio, GonioSetup, Plate, Scattering};
+use opal::gonio::{Beam, DetectorGrid, DetectorLayout, Face, Gonio, GonioSetup, Plate, Scattering, Side};
 use opal_inverse::measured::Measured;
-use opal_inverse::ndf_fit::{Family, FitOn, FitOptions, FitReport, FitSetup, Problem, fit};
+use opal_inverse::ndf_fit::{
+    Family, FitOn, FitOptions, FitReport, FitSetup, Problem, ScaleMode, ScaleSetup, fit,
+};
 use std::path::Path;
 
 fn setup(rough_front: bool, photons: u64) -> FitSetup {
@@ -30,6 +32,8 @@ fn setup(rough_front: bool, photons: u64) -> FitSetup {
         floor_rel: 1e-2,
         max_iters: 40,
         coarse_photons: FitSetup::default_coarse(photons),
+        scale: ScaleSetup::default(),
+        rel_error: 0.0,
     }
 }
 
@@ -343,4 +347,299 @@ fn selection_rule_calibration() {
     eprintln!("mean z² {ms:.3}, preferred {preferred}/{n}");
     assert!(ms < 2.0, "mean z² {ms}");
     assert_eq!(preferred, 0);
+}
+
+/// Synthetic "measurement" of a plate (ior, thickness) with `ndf` on its rough face, 4
+/// incidences (0°, 20°, 40°, 60°), detectors every 1°, simulated with `seed` (independent of the
+/// fit's seed 7 and its check seed), every value and error of incidence i times `factors[i]`.
+fn synthetic_scaled(
+    ndf: Ndfs,
+    rough_front: bool,
+    (ior, thickness_mm): (f64, f64),
+    photons: u64,
+    seed: u64,
+    factors: &[f64; 4],
+) -> Measured {
+    let s = setup(rough_front, photons);
+    let g = Gonio::new(GonioSetup {
+        beam: s.beam.clone(),
+        incidences: [0.0f64, 20.0, 40.0, 60.0].iter().map(|x| x.to_radians()).collect(),
+        detectors: DetectorLayout {
+            grid: DetectorGrid::PlaneOfIncidence {
+                angles: (-89..=89).map(|x| (x as f64).to_radians()).collect(),
+            },
+            radius: s.detector_radius,
+            distance_mm: None,
+        },
+        photons,
+        seed,
+        max_interactions: 200,
+    })
+    .unwrap();
+    let f = Face::Rough { ndf, scattering: Scattering::Single };
+    let mut plate = Plate { ior, thickness_mm, ..s.plate.clone() };
+    if rough_front {
+        plate.front = f;
+    } else {
+        plate.back = f;
+    }
+    let mut m = Measured::from_gonio(&g, &g.run_plate(&plate).unwrap(), "synthetic");
+    let incs = m.incidences();
+    for c in &mut m.curves {
+        let k = factors[incs.iter().position(|&t| t == c.incidence).unwrap()];
+        c.value.iter_mut().for_each(|v| *v *= k);
+        c.stderr.iter_mut().for_each(|v| *v *= k);
+    }
+    m
+}
+
+fn scaled_setup(
+    rough_front: bool,
+    (ior, thickness_mm): (f64, f64),
+    photons: u64,
+    mode: ScaleMode,
+) -> FitSetup {
+    let mut s = setup(rough_front, photons);
+    s.plate.ior = ior;
+    s.plate.thickness_mm = thickness_mm;
+    s.scale = ScaleSetup { mode, prior: None };
+    s
+}
+
+// Default tier (a few seconds): the objective with a global factor (normalised by Σ m) is
+// invariant under m → c·m, so the fit of a measurement scaled by 1.6 is the fit of the unscaled
+// one with the factor × 1.6: the same α (within the fine stage's tolerance 10⁻³ in ln α, the
+// arithmetic differs by rounding) and factor ratio 1.6 (within 10⁻³). On the unscaled
+// measurement the factor is 1 within 3 of its standard errors and α stays within 3 % of the
+// absolute fit's; no fit runs a simulation beyond its optimiser's (the factor is closed-form).
+#[test]
+fn global_factor_absorbs_a_scaled_measurement() {
+    let plate = (1.49, 2.0);
+    let fit1 = |times: f64, mode: ScaleMode| {
+        let m = synthetic_scaled(Ndfs::ggx(0.2), false, plate, 100_000, 1001, &[times; 4]);
+        let p = Problem::new(m, scaled_setup(false, plate, 20_000, mode)).unwrap();
+        let r = fit(&p, &FitOptions { family: Some(Family::Ggx), shift: false, hybrid_nodes: 0 }).unwrap();
+        (r.best().clone(), p.evaluations())
+    };
+    let (abs, n_abs) = fit1(1.0, ScaleMode::Absolute);
+    let (one, n_one) = fit1(1.0, ScaleMode::Global);
+    let (glob, n_glob) = fit1(1.6, ScaleMode::Global);
+    let (k1, e1, k) = (one.fit.scale.factors[0], one.fit.scale.stderr[0], glob.fit.scale.factors[0]);
+    eprintln!(
+        "absolute α {:.5} | global α {:.5} k {k1:.5} ± {e1:.5} | ×1.6 global α {:.5} k {k:.5} \
+         | rms/noise {:.3} {:.3} {:.3} | {n_abs} {n_one} {n_glob} simulations",
+        abs.fit.model.alpha,
+        one.fit.model.alpha,
+        glob.fit.model.alpha,
+        abs.check.rms / abs.check.noise,
+        one.check.rms / one.check.noise,
+        glob.check.rms / glob.check.noise
+    );
+    assert!((glob.fit.model.alpha / one.fit.model.alpha - 1.0).abs() < 1e-3);
+    assert!((k / k1 / 1.6 - 1.0).abs() < 1e-3, "k {k} vs {k1}");
+    assert!((k1 - 1.0).abs() < 3.0 * e1 && e1 > 0.0 && e1 < 0.02, "k {k1} ± {e1}");
+    assert!((one.fit.model.alpha / abs.fit.model.alpha - 1.0).abs() < 0.03);
+    assert!(glob.check.rms <= 1.5 * glob.check.noise);
+    // no simulation beyond the optimiser's (one per objective evaluation) and the probe of the
+    // initial α: the factor is closed-form and the optimum's is found in the log
+    assert_eq!(n_one, n_glob);
+    for f in [&abs.fit, &one.fit, &glob.fit] {
+        assert_eq!(f.evaluations, f.history.len() as u64 + 1);
+    }
+    assert!(abs.fit.scale.factors.is_empty());
+}
+
+/// One acceptance case of unknown calibration factors.
+struct ScaledCase {
+    name: &'static str,
+    truth: (Ndfs, Family, f64),
+    rough_front: bool,
+    plate: (f64, f64),
+    mode: ScaleMode,
+    /// Factor of each incidence (0°, 20°, 40°, 60°).
+    factors: [f64; 4],
+    /// `Some(e)`: every curve normalised to 1 at its peak, no standard errors, a multiplicative
+    /// Gaussian error of relative size e added (seeded) and fitted with `rel_error = e`.
+    normalised: Option<f64>,
+    seed: u64,
+}
+
+/// Photons of the synthetic curves and of the fit of the scaled acceptance cases.
+const SCALED_PHOTONS: (u64, u64) = (4_000_000, 1_000_000);
+
+/// Fits one case (`auto`) and checks the issue's acceptance: the right family, α within 3 %,
+/// every factor within 1 % (scaled cases), rms/noise ≤ 1.5. Returns a summary line.
+fn scaled_case(c: &ScaledCase) -> String {
+    let t0 = std::time::Instant::now();
+    let (truth, family, alpha) = (c.truth.0.clone(), c.truth.1, c.truth.2);
+    let mut m = synthetic_scaled(truth, c.rough_front, c.plate, SCALED_PHOTONS.0, c.seed, &c.factors);
+    let incs: Vec<f64> = m.incidences().iter().map(|t| t.to_degrees()).collect();
+    // true factor (measured / expected simulation) by (incidence, side)
+    let mut truth_of: Vec<(f64, Side, f64)> = Vec::new();
+    let mut s = scaled_setup(c.rough_front, c.plate, SCALED_PHOTONS.1, c.mode);
+    for cv in &mut m.curves {
+        let inc = cv.incidence.to_degrees();
+        let mut k = c.factors[incs.iter().position(|&x| x == inc).unwrap()];
+        if let Some(e) = c.normalised {
+            let mut rng = opal::sampling::Rng::new(c.seed, (inc * 10.0) as u64, cv.side as u64);
+            for v in &mut cv.value {
+                // Box–Muller
+                let (u1, u2) = (1.0 - rng.next_f64(), rng.next_f64());
+                *v *= 1.0 + e * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
+            }
+            let peak = cv.max();
+            cv.value.iter_mut().for_each(|v| *v /= peak);
+            cv.stderr.iter_mut().for_each(|v| *v = 0.0);
+            k /= peak;
+        }
+        truth_of.push((inc, cv.side, k));
+    }
+    if let Some(e) = c.normalised {
+        m.has_stderr = false;
+        s.rel_error = e;
+    }
+    let problem = Problem::new(m, s).unwrap();
+    let r = fit(&problem, &FitOptions::default()).unwrap();
+    show(c.name, &problem, &r, t0);
+    let best = r.best();
+    let model = &best.fit.model;
+    let mut worst: f64 = 0.0;
+    let mut list = Vec::new();
+    let sc = &best.fit.scale;
+    for (g, (k, e)) in problem.scale_groups().iter().zip(sc.factors.iter().zip(&sc.stderr)) {
+        // the groups' true factors (equal within a group by construction)
+        let t = truth_of
+            .iter()
+            .find(|t| {
+                g.incidence_deg.is_none_or(|d| (d - t.0).abs() < 1e-9) && g.side.is_none_or(|sd| sd == t.1)
+            })
+            .unwrap()
+            .2;
+        let err = k / t - 1.0;
+        worst = if err.abs() > worst.abs() { err } else { worst };
+        list.push(format!("{:+.2}±{:.2} %", 100.0 * err, 100.0 * e / k));
+    }
+    let ratio = best.check.rms / best.check.noise;
+    let line = format!(
+        "{}: RESULT {} α {:.4} ({:+.2} %) factor errors [{}] worst {:+.2} % rms/noise {ratio:.3} ({:.0} s)",
+        c.name,
+        model.family.name(),
+        model.alpha,
+        100.0 * (model.alpha / alpha - 1.0),
+        list.join(", "),
+        100.0 * worst,
+        t0.elapsed().as_secs_f64()
+    );
+    eprintln!("{line}");
+    assert_eq!(model.family, family, "{}: wrong family", c.name);
+    assert!((model.alpha / alpha - 1.0).abs() < 0.03, "{}: α {}", c.name, model.alpha);
+    if c.normalised.is_none() {
+        // the issue's bound for scaled curves; normalised noisy curves: the factors are only as
+        // good as 2 % point noise and α allow (measured, not asserted: docs/fit-ndf.md)
+        assert!(worst.abs() < 0.01, "{}: factor error {worst}", c.name);
+    }
+    assert!(ratio <= 1.5, "{}: rms/noise {ratio}", c.name);
+    line
+}
+
+// Acceptance of unknown calibration factors: independent synthetic curves (Opal's gonio, seeds
+// 1101…, 4 000 000 photons, plates other than the reference's 1.49 / 2 mm for most cases) of
+// GGX and Beckmann plates, scaled by global factors in 0.5–2 and per-incidence factors in
+// 0.8–1.25, and one set normalised to 1 at every curve's peak with 2 % noise and no standard
+// errors (`per-curve`, `rel_error` 0.02: family, α, rms/noise asserted; its factors are
+// limited by the point noise and α, 1–3 %); `auto` fits with 1 000 000 photons (the factors'
+// standard errors must be well below the 1 % bound: at 400 000 they were 0.2–0.6 % and the
+// worst error 0.97 %). Also the issue's example fitted as absolute. Run:
+// cargo test -p opal-inverse --test ndf_fit -- --ignored --nocapture scaled_round_trips
+#[test]
+#[ignore]
+fn scaled_round_trips() {
+    let (g, pi) = (ScaleMode::Global, ScaleMode::PerIncidence);
+    let case = |name, truth, rough_front, plate, mode, factors, seed| ScaledCase {
+        name,
+        truth,
+        rough_front,
+        plate,
+        mode,
+        factors,
+        normalised: None,
+        seed,
+    };
+    let cases = [
+        case(
+            "ggx0.25 smooth ×0.8",
+            (Ndfs::ggx(0.25), Family::Ggx, 0.25),
+            false,
+            (1.52, 3.0),
+            g,
+            [0.8; 4],
+            1101,
+        ),
+        case(
+            "ggx0.12 rough ×0.5",
+            (Ndfs::ggx(0.12), Family::Ggx, 0.12),
+            true,
+            (1.49, 2.0),
+            g,
+            [0.5; 4],
+            1102,
+        ),
+        case(
+            "beckmann0.3 rough ×2",
+            (Ndfs::beckmann(0.3), Family::Beckmann, 0.3),
+            true,
+            (1.52, 3.0),
+            g,
+            [2.0; 4],
+            1103,
+        ),
+        case(
+            "ggx0.35 smooth per-incidence",
+            (Ndfs::ggx(0.35), Family::Ggx, 0.35),
+            false,
+            (1.59, 2.0),
+            pi,
+            [0.8, 1.25, 0.9, 1.1],
+            1104,
+        ),
+        case(
+            "beckmann0.2 smooth per-incidence",
+            (Ndfs::beckmann(0.2), Family::Beckmann, 0.2),
+            false,
+            (1.49, 3.0),
+            pi,
+            [1.25, 0.85, 1.1, 0.8],
+            1105,
+        ),
+        ScaledCase {
+            normalised: Some(0.02),
+            ..case(
+                "ggx0.2 rough normalised per curve, 2 % noise",
+                (Ndfs::ggx(0.2), Family::Ggx, 0.2),
+                true,
+                (1.52, 3.0),
+                ScaleMode::PerCurve,
+                [1.0; 4],
+                1106,
+            )
+        },
+    ];
+    let lines: Vec<String> = cases.iter().map(scaled_case).collect();
+    // the issue's example as absolute values: α off, rms/noise far above 1
+    let plate = (1.52, 3.0);
+    let m = synthetic_scaled(Ndfs::ggx(0.25), false, plate, SCALED_PHOTONS.0, 1101, &[0.8; 4]);
+    let p = Problem::new(m, scaled_setup(false, plate, SCALED_PHOTONS.1, ScaleMode::Absolute)).unwrap();
+    let r = fit(&p, &FitOptions::default()).unwrap();
+    let b = r.best();
+    for l in lines {
+        eprintln!("{l}");
+    }
+    eprintln!(
+        "ggx0.25 smooth ×0.8 as absolute: {} α {:.4} ({:+.2} %) rms/noise {:.3}",
+        b.fit.model.family.name(),
+        b.fit.model.alpha,
+        100.0 * (b.fit.model.alpha / 0.25 - 1.0),
+        b.check.rms / b.check.noise
+    );
+    assert!(b.check.rms > 1.5 * b.check.noise, "absolute fit of scaled data within noise?");
 }

@@ -13,7 +13,8 @@ use opal::gonio::{Face, Scattering, Side};
 use opal_inverse::export::{LightSide, bsdf_csv, face_bsdf, ndf_table, zemax_bsdf};
 use opal_inverse::measured::Measured;
 use opal_inverse::ndf_fit::{
-    Candidate, Evaluation, Family, FitOn, FitOptions, FitReport, FitSetup, Model, Problem, fit,
+    Candidate, Evaluation, Family, FitOn, FitOptions, FitReport, FitSetup, Model, Problem, ScaleFit,
+    ScaleMode, ScaleSetup, fit,
 };
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -81,6 +82,19 @@ pub struct FitNdfArgs {
     /// Points below this fraction of their curve's maximum are left out of the objective.
     #[arg(long, default_value_t = 0.01)]
     pub floor: f64,
+    /// Calibration of the measured values: absolute (intensity per unit incident power), global
+    /// (one unknown factor), per-incidence (one per incidence) or per-curve (one per incidence
+    /// and side); the factors are fitted in closed form (docs/fit-ndf.md).
+    #[arg(long, default_value = "absolute")]
+    pub scale: String,
+    /// Known relative uncertainty of the calibration factor(s) (e.g. 0.05): a Gaussian prior
+    /// centred on 1 (needs --scale other than absolute).
+    #[arg(long)]
+    pub scale_prior: Option<f64>,
+    /// Relative standard error of every measured value (noise model of files without
+    /// value_stderr, e.g. normalised to 1 at the peak); added in quadrature to value_stderr.
+    #[arg(long)]
+    pub rel_error: Option<f64>,
     /// Skip the chessboard render (`chessboard.png`, a few CPU-seconds); `face.obsdf` is
     /// still written.
     #[arg(long)]
@@ -134,6 +148,24 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
     if !(a.floor.is_finite() && (0.0..1.0).contains(&a.floor)) {
         bail!("--floor: must be in [0, 1), got {}", a.floor);
     }
+    let scale_mode = match ScaleMode::parse(&a.scale) {
+        Some(m) => m,
+        None => bail!("--scale: must be absolute, global, per-incidence or per-curve, got {:?}", a.scale),
+    };
+    if let Some(sk) = a.scale_prior {
+        if !(sk.is_finite() && sk > 0.0) {
+            bail!("--scale-prior: must be a relative uncertainty > 0 (e.g. 0.05), got {sk}");
+        }
+        if scale_mode == ScaleMode::Absolute {
+            bail!(
+                "--scale-prior: needs --scale global, per-incidence or per-curve (the default is absolute)"
+            );
+        }
+    }
+    let rel_error = a.rel_error.unwrap_or(0.0);
+    if !(rel_error.is_finite() && (0.0..1.0).contains(&rel_error)) {
+        bail!("--rel-error: must be in [0, 1) (a relative standard error, e.g. 0.02), got {rel_error}");
+    }
     let measured = Measured::read(&a.measured).map_err(|e| anyhow!("{e}"))?;
     let file = match &a.plate {
         Some(p) => read_plate_file(p)?,
@@ -178,6 +210,8 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
             Some(n) => Some(n),
             None => FitSetup::default_coarse(photons),
         },
+        scale: ScaleSetup { mode: scale_mode, prior: a.scale_prior },
+        rel_error,
     };
     let problem = Problem::new(measured, setup).map_err(|e| anyhow!("{e}"))?;
     Ok((problem, opts))
@@ -187,7 +221,8 @@ fn candidate_json(c: &Candidate) -> serde_json::Value {
     let f = &c.fit;
     serde_json::json!({
         "family": f.model.family.name(), "model": f.model.describe(), "alpha": f.model.alpha,
-        "params": f.model.params_json(), "parameter_count": f.model.parameter_count(),
+        "params": f.model.params_json(), "parameter_count": f.parameter_count(),
+        "scale_factors": f.scale.factors, "scale_factors_stderr": f.scale.stderr,
         "alpha_initial": f.alpha_initial, "objective": f.objective,
         "check_rms": c.check.rms, "check_noise": c.check.noise, "check_chi2": c.check.chi2,
         "evaluations": f.evaluations, "converged": f.converged,
@@ -242,15 +277,14 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     let check_seed = report.check_seed;
     let ev = report.best().check.clone();
     let first = &report.candidates[0].fit;
-    let init = problem.evaluate(
-        problem
-            .simulate(
-                Model::new(first.model.family, first.alpha_initial).ndf().map_err(|e| anyhow!("{e}"))?,
-                check_seed,
-                s.photons,
-            )
-            .map_err(|e| anyhow!("{e}"))?,
-    );
+    let init_res = problem
+        .simulate(
+            Model::new(first.model.family, first.alpha_initial).ndf().map_err(|e| anyhow!("{e}"))?,
+            check_seed,
+            s.photons,
+        )
+        .map_err(|e| anyhow!("{e}"))?;
+    let init = problem.evaluate(problem.apply_scale(init_res.clone(), &problem.fit_scale(&init_res)));
     let seconds = t0.elapsed().as_secs_f64();
     let converged = report.converged;
 
@@ -341,6 +375,11 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "rms_initial": init.rms,
         "rms_per_incidence": per,
         "chi2": ev.chi2,
+        "scale": scale_json(&problem, &report.best().fit.scale),
+        "noise_model": {
+            "file_stderr": problem.measured.has_stderr,
+            "rel_error": s.rel_error,
+        },
         "objective": best.objective,
         "points": ev.points,
         "photons_per_incidence": s.photons,
@@ -359,6 +398,29 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     });
     write_bytes_atomic(&out.join("fit.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
     Ok(FitOutcome { json, converged, ndf, report })
+}
+
+/// fit.json → `scale`: the mode, the prior and every group's factor (measured ≈ factor ×
+/// simulated) with its standard error.
+fn scale_json(p: &Problem, f: &ScaleFit) -> serde_json::Value {
+    let groups: Vec<_> = p
+        .scale_groups()
+        .iter()
+        .zip(f.factors.iter().zip(&f.stderr))
+        .map(|(g, (k, e))| {
+            serde_json::json!({
+                "incidence_deg": g.incidence_deg.map(|x| (x * 1e6).round() / 1e6),
+                "side": g.side.map_or("both", |s| s.label()),
+                "factor": k, "stderr": e,
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "mode": p.setup.scale.mode.name(),
+        "prior": p.setup.scale.prior,
+        "parameters": f.factors.len(),
+        "factors": groups,
+    })
 }
 
 fn write_curves_csv(path: &Path, p: &Problem, ev: &Evaluation) -> Result<()> {
@@ -458,6 +520,19 @@ pub fn run(a: FitNdfArgs) -> Result<i32> {
             a.output.display()
         );
     }
+    if let Some(fs) = o.json["scale"]["factors"].as_array().filter(|f| !f.is_empty()) {
+        let list: Vec<String> = fs
+            .iter()
+            .map(|f| {
+                format!(
+                    "{:.4} ± {:.4}",
+                    f["factor"].as_f64().unwrap_or(f64::NAN),
+                    f["stderr"].as_f64().unwrap_or(f64::NAN)
+                )
+            })
+            .collect();
+        eprintln!("fit-ndf: calibration factor(s) (measured / simulated): {}", list.join(", "));
+    }
     if !o.converged {
         eprintln!("error: the fit did not converge (outputs written; see fit.json → candidates[].converged)");
         return Ok(1);
@@ -478,6 +553,7 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
         family: "auto".into(),
         scattering: "single".into(),
         fit_on: "both".into(),
+        scale: "absolute".into(),
         photons: Some(30_000),
         max_iters: 40,
         entry: Some("rough".into()),

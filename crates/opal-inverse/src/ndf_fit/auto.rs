@@ -88,7 +88,7 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
         } else {
             problem.fit_family(f)?
         };
-        let check = problem.check(&fit.model)?;
+        let check = problem.check_fit(&fit)?;
         cands.push(Candidate { fit, check });
     }
     let mut best = (0..cands.len())
@@ -104,7 +104,7 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
         // improve on it
         m.gamma = Some(if b.base == Family::Beckmann { 2.0 / 0.01 } else { 2.0 });
         let fit = problem.fit_model(&m, 0.5)?;
-        let check = problem.check(&fit.model)?;
+        let check = problem.check_fit(&fit)?;
         cands.push(Candidate { fit, check });
         let si = cands.len() - 1;
         let comparison = problem.compare(&cands[best].check, &cands[si].check, 1);
@@ -125,7 +125,7 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
             nodes.push((k as f64 * h, 1.0));
             m.nodes = nodes;
             let fit = problem.fit_hybrid(&m)?;
-            let check = problem.check(&fit.model)?;
+            let check = problem.check_fit(&fit)?;
             cands.push(Candidate { fit, check });
             let hi = cands.len() - 1;
             let comparison = problem.compare(&cands[best].check, &cands[hi].check, 1);

@@ -21,6 +21,12 @@
 //! relative standard error `sqrt(σs² + σm²)/m` over the same points, so `rms / noise ≈ 1` means
 //! "fits within noise".
 //!
+//! Calibration ([`ScaleMode`], module `scale`): measured values in relative units or with an
+//! uncertain calibration are modelled as factor × simulated, one factor for the file, per
+//! incidence or per curve; for given NDF parameters the best factors are closed-form, so every
+//! evaluation profiles them out without extra simulations (optionally with a Gaussian prior
+//! around 1). `FitSetup::rel_error` is the noise model of files without standard errors.
+//!
 //! Smoothness: every evaluation uses the same seed (common random numbers: photon j of
 //! incidence i always draws from `Rng::new(seed, i, j)`), so the objective varies smoothly with
 //! the parameters instead of jumping by the Monte-Carlo noise (the numeric NDFs' rejection
@@ -47,18 +53,21 @@
 //! standard errors, c the correlation inflation of overlapping detectors); derivation in
 //! docs/fit-ndf.md.
 //!
-//! Tests: `tests.rs` (models, coordinates, quantiles); `crates/opal-inverse/tests/ndf_fit.rs`
-//! (one Mitsuba reference case in the default tier; all six and the Student-t, shift,
-//! multiple-scattering and hybrid round trips `#[ignore]`d, commands in docs/testing.md).
+//! Tests: `tests.rs` (models, coordinates, quantiles, calibration factors);
+//! `crates/opal-inverse/tests/ndf_fit.rs` (one Mitsuba reference case and a scaled measurement
+//! in the default tier; all six and the Student-t, shift, multiple-scattering, hybrid and
+//! scaled round trips `#[ignore]`d, commands in docs/testing.md).
 
 mod auto;
 mod model;
 mod optimise;
+mod scale;
 mod selection;
 
 pub use auto::{Candidate, Decision, FitOptions, FitReport, fit};
 pub use model::{Family, Model, STUDENT_GAMMA_START, hybrid_spacing};
 pub use optimise::{FamilyFit, fit_families};
+pub use scale::{ScaleFit, ScaleGroup, ScaleMode, ScaleSetup};
 pub use selection::{Comparison, Z99, chi2_q99};
 
 use crate::measured::Measured;
@@ -126,6 +135,13 @@ pub struct FitSetup {
     /// optimum with smaller steps. With the same seed the coarse photons are the first ones of
     /// the fine run (one random stream per photon).
     pub coarse_photons: Option<u64>,
+    /// Unknown calibration factors of the measurement (fitted in closed form; see
+    /// [`ScaleMode`]).
+    pub scale: ScaleSetup,
+    /// Relative standard error of every measured value (noise model of files without standard
+    /// errors, e.g. normalised to 1 at the peak): [`Problem::new`] replaces each point's
+    /// standard error σ by `sqrt(σ² + (rel_error · value)²)`. 0 = the file's errors only.
+    pub rel_error: f64,
 }
 
 impl FitSetup {
@@ -143,6 +159,8 @@ struct Point {
     sm: f64,
     /// Index of the measured curve (only points of one curve share overlapping detectors).
     curve: usize,
+    /// Calibration-factor group (`None` without factors).
+    group: Option<usize>,
 }
 
 /// Which simulator an objective evaluation uses.
@@ -166,6 +184,10 @@ pub struct Problem {
     /// (curve, detector index in the simulator) for every measured point, used or not.
     all: Vec<Vec<usize>>,
     incidences: Vec<f64>,
+    /// Groups of points sharing a calibration factor (empty: absolute values).
+    groups: Vec<ScaleGroup>,
+    /// Factor group of every (incidence, side R/T), `None` when no fitted point is there.
+    group_of: Vec<[Option<usize>; 2]>,
     /// Simulations run: (coarse, at `photons` or other).
     evals: Mutex<(u64, u64)>,
 }
@@ -188,13 +210,41 @@ pub struct Evaluation {
 }
 
 impl Problem {
-    /// Builds the simulator for the measurement's incidences and detector angles.
-    pub fn new(measured: Measured, setup: FitSetup) -> opal::Result<Self> {
+    /// Builds the simulator for the measurement's incidences and detector angles; folds
+    /// `setup.rel_error` into the measured standard errors (`measured.curves[].stderr`).
+    pub fn new(mut measured: Measured, setup: FitSetup) -> opal::Result<Self> {
         if !(setup.floor_rel.is_finite() && (0.0..1.0).contains(&setup.floor_rel)) {
             return Err(opal::Error::invalid(
                 "floor_rel",
                 format!("must be in [0, 1), got {}", setup.floor_rel),
             ));
+        }
+        if !(setup.rel_error.is_finite() && setup.rel_error >= 0.0) {
+            return Err(opal::Error::invalid(
+                "relative error",
+                format!("must be finite and ≥ 0, got {}", setup.rel_error),
+            ));
+        }
+        if let Some(sk) = setup.scale.prior {
+            if !(sk.is_finite() && sk > 0.0) {
+                return Err(opal::Error::invalid(
+                    "scale prior",
+                    format!("the factors' relative uncertainty must be finite and > 0, got {sk}"),
+                ));
+            }
+            if setup.scale.mode == ScaleMode::Absolute {
+                return Err(opal::Error::invalid(
+                    "scale prior",
+                    "a prior on the calibration factors needs fitted factors (the values are absolute)",
+                ));
+            }
+        }
+        if setup.rel_error > 0.0 {
+            for c in &mut measured.curves {
+                for (se, &v) in c.stderr.iter_mut().zip(&c.value) {
+                    *se = se.hypot(setup.rel_error * v);
+                }
+            }
         }
         for s in [Side::R, Side::T] {
             if setup.fit_on.uses(s) && setup.fit_on != FitOn::Both && !measured.has_side(s) {
@@ -243,7 +293,7 @@ impl Problem {
                 idx.push(off + j);
                 let m = c.value[k];
                 if setup.fit_on.uses(c.side) && m > 0.0 && m >= floor {
-                    points.push(Point { inc, det: off + j, m, sm: c.stderr[k], curve });
+                    points.push(Point { inc, det: off + j, m, sm: c.stderr[k], curve, group: None });
                 }
             }
             all.push(idx);
@@ -254,6 +304,41 @@ impl Problem {
                 "no point above the floor on the fitted side(s)",
             ));
         }
+        let mut groups = Vec::new();
+        let mut group_of = vec![[None; 2]; incidences.len()];
+        if setup.scale.mode != ScaleMode::Absolute {
+            for p in &mut points {
+                let side = measured.curves[p.curve].side;
+                let si = (side == Side::T) as usize;
+                let key = match setup.scale.mode {
+                    ScaleMode::Global => ScaleGroup { incidence_deg: None, side: None },
+                    ScaleMode::PerIncidence => {
+                        ScaleGroup { incidence_deg: Some(incidences[p.inc].to_degrees()), side: None }
+                    }
+                    _ => ScaleGroup { incidence_deg: Some(incidences[p.inc].to_degrees()), side: Some(side) },
+                };
+                let g = match groups.iter().position(|x| *x == key) {
+                    Some(g) => g,
+                    None => {
+                        groups.push(key);
+                        groups.len() - 1
+                    }
+                };
+                p.group = Some(g);
+                group_of[p.inc][si] = Some(g);
+            }
+            // a side without fitted points shares its incidence's (or the global) factor
+            if setup.scale.mode != ScaleMode::PerCurve {
+                for gi in &mut group_of {
+                    let g = gi[0].or(gi[1]);
+                    gi[0] = gi[0].or(g);
+                    gi[1] = gi[1].or(g);
+                }
+                if setup.scale.mode == ScaleMode::Global {
+                    group_of = vec![[Some(0); 2]; incidences.len()];
+                }
+            }
+        }
         Ok(Problem {
             measured,
             setup,
@@ -262,6 +347,8 @@ impl Problem {
             points,
             all,
             incidences,
+            groups,
+            group_of,
             evals: Mutex::new((0, 0)),
         })
     }
@@ -339,7 +426,8 @@ impl Problem {
         self.gonio_coarse.is_some()
     }
 
-    /// Compares a simulation with the measurement.
+    /// Compares a simulation with the measurement (calibration factors already applied: see
+    /// [`Problem::apply_scale`]).
     pub fn evaluate(&self, res: GonioResult) -> Evaluation {
         let mut se = 0.0;
         let mut sn = 0.0;
@@ -387,33 +475,64 @@ impl Problem {
     /// simulation's own variance σs² makes it an unbiased estimate of the misfit of the
     /// *expected* simulation (plus a constant): without it the Monte-Carlo variance, which
     /// grows with the simulated value, pulls α towards dimmer lobes.
-    fn objective(&self, ndf: Ndfs, stage: Stage) -> opal::Result<f64> {
+    ///
+    /// With calibration factors ([`ScaleMode`]) s and σs are the simulated value and error
+    /// times the point's factor, each factor the closed-form best one for this simulation
+    /// (returned beside the objective), plus the prior's penalty when there is one.
+    fn objective(&self, ndf: Ndfs, stage: Stage) -> opal::Result<(f64, ScaleFit)> {
         let res = self.simulate(ndf, self.setup.seed, self.stage_photons(stage))?;
+        Ok(self.objective_of(&res))
+    }
+
+    /// The objective of simulation `res` and its calibration factors (see `objective`).
+    fn objective_of(&self, res: &GonioResult) -> (f64, ScaleFit) {
+        let fit = self.fit_scale(res);
         let (mut acc, mut wsum) = (0.0, 0.0);
         for p in &self.points {
             let r = &res.incidences[p.inc];
-            let (s, ss) = (r.value[p.det], r.value_stderr[p.det]);
+            let k = Self::factor(&fit, p.group);
+            let (s, ss) = (k * r.value[p.det], k * r.value_stderr[p.det]);
             acc += ((s - p.m).powi(2) - ss * ss) / p.m;
+            if p.group.is_some() {
+                // the 1/m weight's bias (see `scale`): without it the factors come out low by
+                // the mean relative variance of the measured points
+                acc -= 2.0 * (s - p.m) * (p.sm / p.m).powi(2);
+            }
             wsum += p.m;
         }
-        Ok(acc / wsum)
+        if fit.penalty > 0.0 {
+            acc += fit.penalty;
+        }
+        (acc / wsum, fit)
     }
 
     /// The natural unit of the objective at a simulation: Σ (σs² + σm²)/m / Σ m (the
-    /// objective's value when every residual is one standard error).
+    /// objective's value when every residual is one standard error; σs times the point's
+    /// best factor).
     fn objective_noise(&self, res: &GonioResult) -> f64 {
+        let fit = self.fit_scale(res);
         let (mut acc, mut wsum) = (0.0, 0.0);
         for p in &self.points {
-            let ss = res.incidences[p.inc].value_stderr[p.det];
+            let ss = Self::factor(&fit, p.group) * res.incidences[p.inc].value_stderr[p.det];
             acc += (ss * ss + p.sm * p.sm) / p.m;
             wsum += p.m;
         }
         acc / wsum
     }
 
-    /// Re-simulates `model` with the independent check seed at full photons.
+    /// Re-simulates `model` with the independent check seed at full photons (with calibration
+    /// factors: the best ones for this simulation).
     pub fn check(&self, model: &Model) -> opal::Result<Evaluation> {
-        Ok(self.evaluate(self.simulate(model.ndf()?, check_seed(self.setup.seed), self.setup.photons)?))
+        let res = self.simulate(model.ndf()?, check_seed(self.setup.seed), self.setup.photons)?;
+        let fit = self.fit_scale(&res);
+        Ok(self.evaluate(self.apply_scale(res, &fit)))
+    }
+
+    /// Re-simulates a fitted model with the independent check seed at full photons, its
+    /// simulated values times the factors found by the fit (`fit.scale`).
+    pub fn check_fit(&self, fit: &FamilyFit) -> opal::Result<Evaluation> {
+        let res = self.simulate(fit.model.ndf()?, check_seed(self.setup.seed), self.setup.photons)?;
+        Ok(self.evaluate(self.apply_scale(res, &fit.scale)))
     }
 }
 

@@ -7,7 +7,7 @@
 //! Tests: `crates/opal-inverse/tests/ndf_fit.rs` (round trips).
 
 use super::model::{Coord, apply};
-use super::{Family, Model, Problem, Stage};
+use super::{Family, Model, Problem, ScaleFit, Stage};
 use argmin::core::{CostFunction, Executor, State, TerminationReason, TerminationStatus};
 use argmin::solver::brent::BrentOpt;
 use argmin::solver::neldermead::NelderMead;
@@ -28,9 +28,32 @@ pub struct FamilyFit {
     pub evaluations: u64,
     /// Whether every optimiser stage converged.
     pub converged: bool,
+    /// Calibration factors of the measurement at the optimum (closed form for the fine
+    /// stage's simulation of `model`; none when the values are absolute).
+    pub scale: ScaleFit,
     /// (parameters, objective) of every evaluation in order; parameters as in
     /// [`Model::param_values`], the stage is `coarse`/`fine`.
     pub history: Vec<(&'static str, Vec<f64>, f64)>,
+}
+
+impl FamilyFit {
+    /// Fitted parameters: the model's and the calibration factors (what the selection rule
+    /// counts; two candidates of one fit have the same factors, so they cancel in its
+    /// difference of parameter counts).
+    pub fn parameter_count(&self) -> usize {
+        self.model.parameter_count() + self.scale.factors.len()
+    }
+}
+
+/// (stage, reported parameters, objective) of every evaluation.
+type History = Vec<(&'static str, Vec<f64>, f64)>;
+
+/// What the cost functions record: every evaluation (stage, reported parameters, objective)
+/// and the calibration factors of every fine-stage evaluation (by reported parameters).
+#[derive(Default)]
+struct EvalLog {
+    history: Mutex<History>,
+    scales: Mutex<Vec<(Vec<f64>, ScaleFit)>>,
 }
 
 impl Problem {
@@ -95,7 +118,7 @@ impl Problem {
     pub fn fit_family(&self, family: Family) -> opal::Result<FamilyFit> {
         let e0 = self.evaluations();
         let a0 = self.initial_alpha(family)?;
-        let history = Mutex::new(Vec::new());
+        let log = EvalLog::default();
         let start = Model::new(family, a0);
         let mut model = start.clone();
         let mut converged = true;
@@ -106,18 +129,20 @@ impl Problem {
             &[(Stage::Fine, 1.8, 1e-3)]
         };
         for &(stage, span, tol) in stages {
-            let (x, fx, ok) = self.brent(&model, stage, span.ln(), tol, &history)?;
+            let (x, fx, ok) = self.brent(&model, stage, span.ln(), tol, &log)?;
             model.alpha = x.exp();
             objective = fx;
             converged &= ok;
         }
+        let (scale, history) = self.scale_at(&model, log)?;
         Ok(FamilyFit {
             alpha_initial: a0,
             model,
             objective,
             evaluations: self.evaluations() - e0,
             converged,
-            history: history.into_inner().expect("no panic while recording"),
+            scale,
+            history,
         })
     }
 
@@ -129,16 +154,15 @@ impl Problem {
         stage: Stage,
         span: f64,
         tol: f64,
-        history: &Mutex<Vec<(&'static str, Vec<f64>, f64)>>,
+        log: &EvalLog,
     ) -> opal::Result<(f64, f64, bool)> {
         let mut center = start.alpha.ln();
         let mut best = (center, f64::INFINITY);
         let mut converged = false;
         for _round in 0..4 {
             let (lo, hi) = (center - span, center + span);
-            let cost = Cost1 {
-                inner: ParamCost { problem: self, start, coords: &[Coord::LnAlpha], stage, history },
-            };
+            let cost =
+                Cost1 { inner: ParamCost { problem: self, start, coords: &[Coord::LnAlpha], stage, log } };
             let solver = BrentOpt::new(lo, hi).set_tolerance(0.0, tol);
             let res = Executor::new(cost, solver)
                 .configure(|s| s.max_iters(self.setup.max_iters))
@@ -178,7 +202,7 @@ impl Problem {
         stage: Stage,
         scale: f64,
         sd_tol: f64,
-        history: &Mutex<Vec<(&'static str, Vec<f64>, f64)>>,
+        log: &EvalLog,
     ) -> opal::Result<(Model, f64, bool)> {
         let x0: Vec<f64> = coords.iter().map(|c| c.get(start)).collect();
         let mut simplex = vec![x0.clone()];
@@ -189,7 +213,7 @@ impl Problem {
             x[i] = if x0[i] + s <= hi { x0[i] + s } else { (x0[i] - s).max(lo) };
             simplex.push(x);
         }
-        let cost = ParamCost { problem: self, start, coords, stage, history };
+        let cost = ParamCost { problem: self, start, coords, stage, log };
         let solver = NelderMead::new(simplex)
             .with_sd_tolerance(sd_tol.max(0.0))
             .map_err(|e| opal::Error::invalid("optimiser", e.to_string()))?;
@@ -241,7 +265,7 @@ impl Problem {
 
     fn fit_coords(&self, start: &Model, coords: &[Coord], step_scale: f64) -> opal::Result<FamilyFit> {
         let e0 = self.evaluations();
-        let history = Mutex::new(Vec::new());
+        let log = EvalLog::default();
         let probe = self.simulate(start.ndf()?, self.setup.seed, self.stage_photons(Stage::Fine))?;
         let unit = self.objective_noise(&probe);
         let mut model = start.clone();
@@ -253,19 +277,37 @@ impl Problem {
             &[(Stage::Fine, step_scale, 1e-2)]
         };
         for &(stage, scale, tol) in stages {
-            let (m, fx, ok) = self.nelder_mead(&model, coords, stage, scale, tol * unit, &history)?;
+            let (m, fx, ok) = self.nelder_mead(&model, coords, stage, scale, tol * unit, &log)?;
             model = m;
             objective = fx;
             converged &= ok;
         }
+        let (scale, history) = self.scale_at(&model, log)?;
         Ok(FamilyFit {
             alpha_initial: start.alpha,
             model,
             objective,
             evaluations: self.evaluations() - e0,
             converged,
-            history: history.into_inner().expect("no panic while recording"),
+            scale,
+            history,
         })
+    }
+
+    /// The calibration factors of the fine stage at `model` (from the log: the optimum was
+    /// evaluated, else from one more simulation; none without factors) and the history.
+    fn scale_at(&self, model: &Model, log: EvalLog) -> opal::Result<(ScaleFit, History)> {
+        let history = log.history.into_inner().expect("no panic while recording");
+        if self.groups.is_empty() {
+            return Ok((ScaleFit::none(), history));
+        }
+        let x = model.param_values();
+        let scales = log.scales.into_inner().expect("no panic while recording");
+        if let Some((_, s)) = scales.into_iter().rev().find(|(p, _)| *p == x) {
+            return Ok((s, history));
+        }
+        let res = self.simulate(model.ndf()?, self.setup.seed, self.stage_photons(Stage::Fine))?;
+        Ok((self.fit_scale(&res), history))
     }
 }
 
@@ -274,7 +316,7 @@ struct ParamCost<'a> {
     start: &'a Model,
     coords: &'a [Coord],
     stage: Stage,
-    history: &'a Mutex<Vec<(&'static str, Vec<f64>, f64)>>,
+    log: &'a EvalLog,
 }
 
 impl CostFunction for ParamCost<'_> {
@@ -282,12 +324,15 @@ impl CostFunction for ParamCost<'_> {
     type Output = f64;
     fn cost(&self, x: &Vec<f64>) -> Result<f64, argmin::core::Error> {
         let (m, pen) = apply(self.start, self.coords, x);
-        let f = m
+        let (f, scale) = m
             .ndf()
             .and_then(|ndf| self.problem.objective(ndf, self.stage))
             .map_err(|e| argmin::core::Error::msg(e.to_string()))?;
         let label = if self.stage == Stage::Coarse { "coarse" } else { "fine" };
-        self.history.lock().expect("no panic while recording").push((label, m.param_values(), f));
+        if self.stage == Stage::Fine && !scale.factors.is_empty() {
+            self.log.scales.lock().expect("no panic while recording").push((m.param_values(), scale));
+        }
+        self.log.history.lock().expect("no panic while recording").push((label, m.param_values(), f));
         Ok(f + pen)
     }
 }

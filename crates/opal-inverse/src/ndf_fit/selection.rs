@@ -6,6 +6,7 @@
 //! Tests: `tests.rs` (χ² quantiles); the selection itself through `fit` in
 //! `crates/opal-inverse/tests/ndf_fit.rs`.
 
+use super::scale::overlap;
 use super::{Evaluation, Problem};
 
 /// The 0.99 quantile of the χ² distribution with `k` degrees of freedom (table for k ≤ 6,
@@ -96,8 +97,7 @@ impl Problem {
                 }
                 // common area of two discs of radius r at distance `dist`, over π r²: the
                 // correlation of their counts; the product-of-noises part correlates by ρ²
-                let h = dist / (2.0 * r);
-                let rho = (2.0 * h.acos() - 2.0 * h * (1.0 - h * h).sqrt()) / std::f64::consts::PI;
+                let rho = overlap(dist, r);
                 var += 2.0 * rho * (a.3 * b.3).sqrt() + 2.0 * rho * rho * (a.4 * b.4).sqrt();
             }
         }

@@ -1,9 +1,11 @@
 //! Unit tests of the NDF fit: models build the right NDF, coordinates are clamped and
-//! penalised, χ² quantiles.
+//! penalised, χ² quantiles, the closed-form calibration factors (minimum, equivariance, prior,
+//! absolute mode unchanged).
 
 use super::model::{Coord, apply};
 use super::*;
 use opal::bsdf::microfacet::Ndf;
+use opal::gonio::{Face, GonioResult, Plate, Scattering};
 use opal::math::Vec3;
 
 fn d_at(n: &Ndfs, deg: f64) -> f64 {
@@ -55,4 +57,190 @@ fn chi2_quantiles() {
     assert_eq!(chi2_q99(1), 6.635);
     // Wilson–Hilferty beyond the table: χ²₀.₉₉(10) = 23.209
     assert!((chi2_q99(10) - 23.209).abs() < 0.1, "{}", chi2_q99(10));
+}
+
+/// A problem on synthetic curves (GGX α = 0.2, 2 incidences, 20 000 photons, seed 1001) with
+/// calibration `scale`, and a simulation of GGX α = 0.23 at the fit's seed.
+fn scaled_problem(scale: ScaleSetup, times: f64) -> (Problem, GonioResult) {
+    use opal::gonio::{Beam, DetectorGrid, DetectorLayout, Gonio, GonioSetup};
+    let mut plate = Plate {
+        ior: 1.49,
+        thickness_mm: 2.0,
+        absorption_per_mm: 0.0,
+        front: Face::Polished,
+        back: Face::Polished,
+        radius_mm: None,
+    };
+    let beam = Beam { azimuth: 0.0, divergence: 0.5f64.to_radians(), aperture_radius_mm: 1.0 };
+    let g = Gonio::new(GonioSetup {
+        beam: beam.clone(),
+        incidences: vec![0.0, 40f64.to_radians()],
+        detectors: DetectorLayout {
+            grid: DetectorGrid::PlaneOfIncidence {
+                angles: (-70..=70).map(|x| (x as f64).to_radians()).collect(),
+            },
+            radius: 1f64.to_radians(),
+            distance_mm: None,
+        },
+        photons: 20_000,
+        seed: 1001,
+        max_interactions: 200,
+    })
+    .unwrap();
+    plate.back = Face::Rough { ndf: Ndfs::ggx(0.2), scattering: Scattering::Single };
+    let mut m = crate::measured::Measured::from_gonio(&g, &g.run_plate(&plate).unwrap(), "synthetic");
+    for c in &mut m.curves {
+        c.value.iter_mut().for_each(|v| *v *= times);
+        c.stderr.iter_mut().for_each(|v| *v *= times);
+    }
+    let setup = FitSetup {
+        plate: Plate { back: Face::Polished, ..plate },
+        rough_front: false,
+        scattering: Scattering::Single,
+        beam,
+        detector_radius: 1f64.to_radians(),
+        detector_distance_mm: None,
+        photons: 20_000,
+        seed: 7,
+        max_interactions: 200,
+        fit_on: FitOn::Both,
+        floor_rel: 0.01,
+        max_iters: 40,
+        coarse_photons: None,
+        scale,
+        rel_error: 0.0,
+    };
+    let p = Problem::new(m, setup).unwrap();
+    let res = p.simulate(Ndfs::ggx(0.23), 7, 20_000).unwrap();
+    (p, res)
+}
+
+fn mode(mode: ScaleMode) -> ScaleSetup {
+    ScaleSetup { mode, prior: None }
+}
+
+/// dG/dk of group g at the factors of `fit` (G = Σ ((k s − m)² − k² σs²)/m − 2 (k s − m) r²):
+/// zero at the closed-form optimum.
+fn gradient(p: &Problem, res: &GonioResult, fit: &ScaleFit, g: usize) -> (f64, f64) {
+    let (mut d, mut norm) = (0.0, 0.0);
+    for pt in p.points.iter().filter(|pt| pt.group == Some(g)) {
+        let r = &res.incidences[pt.inc];
+        let (s, ss, k) = (r.value[pt.det], r.value_stderr[pt.det], fit.factors[g]);
+        d += 2.0 * ((k * s - pt.m) * s - k * ss * ss) / pt.m - 2.0 * s * (pt.sm / pt.m).powi(2);
+        norm += 2.0 * s;
+    }
+    (d, norm)
+}
+
+#[test]
+fn closed_form_factor_is_the_minimum() {
+    for (m, groups) in [(ScaleMode::Global, 1), (ScaleMode::PerIncidence, 2), (ScaleMode::PerCurve, 4)] {
+        let (p, res) = scaled_problem(mode(m), 1.0);
+        assert_eq!(p.scale_groups().len(), groups, "{m:?}");
+        let (obj, fit) = p.objective_of(&res);
+        assert_eq!(fit.factors.len(), groups);
+        for g in 0..groups {
+            let (d, norm) = gradient(&p, &res, &fit, g);
+            assert!(d.abs() < 1e-12 * norm, "{m:?} group {g}: dG/dk {d} (scale {norm})");
+            // a wider α (0.23 vs the true 0.2) has a lower peak: the factor makes up for it
+            assert!(fit.factors[g] > 1.0 && fit.stderr[g] > 0.0 && fit.stderr[g] < 0.05, "{fit:?}");
+            // moving any factor raises the objective
+            for h in [0.99, 1.01] {
+                let mut f2 = fit.clone();
+                f2.factors[g] *= h;
+                let scaled = p.apply_scale(res.clone(), &f2);
+                let (mut acc, mut w) = (0.0, 0.0);
+                for pt in &p.points {
+                    let r = &scaled.incidences[pt.inc];
+                    let e = r.value[pt.det] - pt.m;
+                    acc += (e * e - r.value_stderr[pt.det].powi(2)) / pt.m - 2.0 * e * (pt.sm / pt.m).powi(2);
+                    w += pt.m;
+                }
+                assert!(acc / w > obj, "{m:?} group {g} ×{h}: {} ≤ {obj}", acc / w);
+            }
+        }
+        // the simulation times its best factors needs no further factor
+        let again = p.fit_scale(&p.apply_scale(res.clone(), &fit));
+        assert!(again.factors.iter().all(|k| (k - 1.0).abs() < 1e-12), "{again:?}");
+    }
+}
+
+#[test]
+fn scaled_measurement_scales_the_factor_only() {
+    // m → c m (values and errors): every factor × c, the objective (normalised by Σ m) and so
+    // the fitted NDF unchanged
+    for m in [ScaleMode::Global, ScaleMode::PerIncidence] {
+        let (p1, res) = scaled_problem(mode(m), 1.0);
+        let (p2, _) = scaled_problem(mode(m), 1.7);
+        let (o1, f1) = p1.objective_of(&res);
+        let (o2, f2) = p2.objective_of(&res);
+        assert!((o2 / o1 - 1.0).abs() < 1e-12, "{o1} {o2}");
+        for g in 0..f1.factors.len() {
+            assert!((f2.factors[g] / f1.factors[g] / 1.7 - 1.0).abs() < 1e-12);
+            assert!((f2.stderr[g] / f1.stderr[g] / 1.7 - 1.0).abs() < 1e-9);
+        }
+    }
+}
+
+#[test]
+fn absolute_values_have_no_factor() {
+    let (p, res) = scaled_problem(ScaleSetup::default(), 1.0);
+    assert!(p.scale_groups().is_empty());
+    let (obj, fit) = p.objective_of(&res);
+    assert_eq!(fit, ScaleFit::none());
+    let same = p.apply_scale(res.clone(), &fit);
+    assert_eq!(same.incidences[1].value, res.incidences[1].value);
+    // the objective is bit for bit the formula without factors
+    let (mut acc, mut w) = (0.0, 0.0);
+    for pt in &p.points {
+        let r = &res.incidences[pt.inc];
+        acc += ((r.value[pt.det] - pt.m).powi(2) - r.value_stderr[pt.det] * r.value_stderr[pt.det]) / pt.m;
+        w += pt.m;
+    }
+    assert_eq!(obj.to_bits(), (acc / w).to_bits());
+}
+
+#[test]
+fn prior_pulls_the_factor_towards_one() {
+    let (p, res) = scaled_problem(mode(ScaleMode::Global), 1.3);
+    let free = p.fit_scale(&res);
+    let (kd, sd) = (free.factors[0], free.stderr[0]);
+    let with = |sk: f64| {
+        let (q, _) = scaled_problem(ScaleSetup { mode: ScaleMode::Global, prior: Some(sk) }, 1.3);
+        q.fit_scale(&res)
+    };
+    // the precision-weighted mean of the data's factor and 1
+    for sk in [0.01, 0.05, 0.2] {
+        let f = with(sk);
+        let expect = (kd / (sd * sd) + 1.0 / (sk * sk)) / (1.0 / (sd * sd) + 1.0 / (sk * sk));
+        assert!((f.factors[0] - expect).abs() < 1e-9 * expect, "σk {sk}: {} vs {expect}", f.factors[0]);
+        assert!(f.stderr[0] < sd.min(sk) && f.penalty > 0.0);
+    }
+    assert!((with(1e3).factors[0] - kd).abs() < 1e-6);
+    assert!((with(1e-5).factors[0] - 1.0).abs() < 1e-3);
+}
+
+#[test]
+fn scale_settings_are_checked() {
+    let (p, _) = scaled_problem(mode(ScaleMode::Global), 1.0);
+    let bad = |f: &dyn Fn(&mut FitSetup)| {
+        let mut s = p.setup.clone();
+        f(&mut s);
+        Problem::new(p.measured.clone(), s).err().map(|e| e.to_string())
+    };
+    assert!(bad(&|s| s.scale.prior = Some(-0.1)).unwrap().contains("scale prior"));
+    assert!(bad(&|s| s.scale = ScaleSetup { mode: ScaleMode::Absolute, prior: Some(0.05) }).is_some());
+    assert!(bad(&|s| s.rel_error = f64::NAN).unwrap().contains("relative error"));
+    assert!(bad(&|_| ()).is_none());
+    // the relative error is added in quadrature to the file's
+    let mut s = p.setup.clone();
+    s.rel_error = 0.03;
+    let q = Problem::new(p.measured.clone(), s).unwrap();
+    let (c0, c1) = (&p.measured.curves[1], &q.measured.curves[1]);
+    for k in 0..c0.value.len() {
+        let want = c0.stderr[k].hypot(0.03 * c0.value[k]);
+        assert!((c1.stderr[k] - want).abs() <= 1e-15 * want.max(1e-300));
+    }
+    assert_eq!(ScaleMode::parse("per-incidence"), Some(ScaleMode::PerIncidence));
+    assert_eq!(ScaleMode::parse("relative"), None);
 }
