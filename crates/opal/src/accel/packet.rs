@@ -175,7 +175,9 @@ impl PacketAccel {
             let h = unsafe { self.kernel_avx2::<true>(rays) };
             return (0..PACKET).filter(|&l| h.prim[l] >= 0).fold(0, |m, l| m | 1 << l);
         }
-        (0..PACKET).filter(|&l| rays.tmax[l] > 0.0 && self.brute.occluded(&rays.ray(l))).fold(0, |m, l| m | 1 << l)
+        (0..PACKET)
+            .filter(|&l| rays.tmax[l] > 0.0 && self.brute.occluded(&rays.ray(l)))
+            .fold(0, |m, l| m | 1 << l)
     }
 
     /// [`PacketAccel::intersect_lanes`] with AVX2 (callers compiled with AVX2 may inline it).
