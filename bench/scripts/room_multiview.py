@@ -25,7 +25,7 @@ Usage: bench/.venv/bin/python bench/scripts/room_multiview.py OUT [--spp 1024] [
        [--variant llvm_ad_rgb] [--scale 1.0]
 (--scale multiplies the view resolutions, e.g. 0.5 for a quick look). The de-lighting
 acceptance on it: `OPAL_ROOM_DIR=OUT cargo test -p opal-inverse --test delight_room --
---ignored --nocapture` (crates/opal-inverse/tests/delight.rs).
+--ignored --nocapture` (crates/opal-inverse/tests/delight_room.rs).
 """
 import argparse
 import glob

@@ -2,8 +2,8 @@
 //! box: a closed room with a textured floor and poster (bitmap albedos), a faceted sphere mesh, a
 //! rotated cuboid, five walls/ceiling of constant albedos, two ceiling area lights of different
 //! size and colour, and six cameras inside the room at different resolutions (320×240 … 240×320).
-//! Made by `bench/scripts/room_multiview.py OUT` (Mitsuba 3.9.1, 1024 spp, ~15 min on 2 shared cores);
-//! all tests are ignored and read the directory from `OPAL_ROOM_DIR`:
+//! Made by `bench/scripts/room_multiview.py OUT` (Mitsuba 3.9.1, 1024 spp, ~15 min on 2 shared
+//! cores); all tests are ignored and read the directory from `OPAL_ROOM_DIR`:
 //!
 //! `OPAL_ROOM_DIR=OUT cargo test -p opal-inverse --test delight_room -- --ignored --nocapture`
 //!
