@@ -1,0 +1,260 @@
+//! De-lighting acceptance on an independent Mitsuba 3 data set that is not the shared Cornell
+//! box: a closed room with a textured floor and poster (bitmap albedos), a faceted sphere mesh, a
+//! rotated cuboid, five walls/ceiling of constant albedos, two ceiling area lights of different
+//! size and colour, and six cameras inside the room at different resolutions (320×240 … 240×320).
+//! Made by `bench/scripts/room_multiview.py OUT` (Mitsuba 3.9.1, 1024 spp, ~15 min on 2 shared
+//! cores); all tests are ignored and read the directory from `OPAL_ROOM_DIR`:
+//!
+//! `OPAL_ROOM_DIR=OUT cargo test -p opal-inverse --test delight_room -- --ignored --nocapture`
+//!
+//! * `mitsuba_room_acceptance`: exact views, `fixed` — constant albedos within 1 %, textures
+//!   ≥ 38 dB (the de-lighting acceptance).
+//! * `mitsuba_room_view_gains_acceptance`: the views × known gains (exposure 0.85–1.2, white
+//!   balance ±5 %, median view exact per channel), `exposure+wb` — issue 26's acceptance: gains
+//!   within 0.5 %, constant albedos within 1 %, textures ≥ 38 dB.
+//! * `mitsuba_room_three_views_off`: issue 26's own scenario, 3 of 6 views × 1.15, 0.9, 1.08, the
+//!   others exact, `exposure` — the same bounds.
+//!
+//! `OPAL_VIEW_GAINS=fixed|exposure|exposure+wb` overrides the mode of the two gained tests (e.g.
+//! `fixed` shows what the gained views give without the estimation; bounds are then not
+//! asserted); `OPAL_DELIGHT_PATHS` the light paths per pass (default 20 M).
+//!
+//! Measured 2026-11-26 (20 M paths/pass, 5 passes; 17–27 min per test on 2 shared cores): the
+//! gains within 0.053 % (`exposure+wb`) and 0.041 % (3 views off), worst constant albedo 0.94 /
+//! 0.97 % (exact views 0.95 %), poster 39.75 dB in all three; **all three fail on the floor
+//! texture, 35.5 dB < 38 dB, the exact views included** (grazing views of 12.5 × 8.6 mm texels
+//! with grout lines; a one-texel blur of the truth alone gives 36.6 dB) — a resolution limit of
+//! the de-lighting on this data, not of the view gains.
+
+use opal::image::Image;
+use opal::math::Vec2;
+use opal::scene::desc::{BitmapDesc, BsdfDesc, FilterType, SceneDesc, TextureDesc, WrapMode};
+use opal_inverse::delight::views::{View, read_views};
+use opal_inverse::delight::{DelightResult, DelightSettings, ViewGainMode, ViewGainSettings, delight};
+use std::path::PathBuf;
+
+fn dir() -> PathBuf {
+    PathBuf::from(
+        std::env::var("OPAL_ROOM_DIR").expect("set OPAL_ROOM_DIR (bench/scripts/room_multiview.py)"),
+    )
+}
+
+fn load() -> (SceneDesc, Vec<View>) {
+    let d = dir();
+    let desc = opal::scene::load::load_mitsuba_xml(&d.join("scene.xml"), &[]).unwrap();
+    let (views, warn) = read_views(&d.join("transforms.json")).unwrap();
+    assert!(warn.is_empty(), "{warn:?}");
+    assert_eq!(views.len(), 6);
+    (desc, views)
+}
+
+fn settings(mode: ViewGainMode) -> DelightSettings {
+    let paths: u64 =
+        std::env::var("OPAL_DELIGHT_PATHS").ok().and_then(|v| v.parse().ok()).unwrap_or(20_000_000);
+    DelightSettings {
+        light_paths: paths,
+        iterations: 5,
+        tolerance: 0.0,
+        view_gains: ViewGainSettings { mode, ..Default::default() },
+        ..Default::default()
+    }
+}
+
+/// The mode of a gained test: `default` unless `OPAL_VIEW_GAINS` overrides it.
+fn mode_or(default: ViewGainMode) -> ViewGainMode {
+    match std::env::var("OPAL_VIEW_GAINS").as_deref() {
+        Ok("fixed") => ViewGainMode::Fixed,
+        Ok("exposure") => ViewGainMode::Exposure,
+        Ok("exposure+wb") => ViewGainMode::ExposureWb,
+        Err(_) => default,
+        Ok(other) => panic!("OPAL_VIEW_GAINS: unknown mode {other}"),
+    }
+}
+
+/// PSNR (peak 1) of a recovered texture against the truth over the texels seen by some view;
+/// the recovered texture is looked up at the truth's texel centres (same UVs).
+fn texture_psnr(r: &DelightResult, id: &str, truth: &Image) -> (f64, usize) {
+    let o = r.objects.iter().find(|o| o.id == id).unwrap();
+    assert!(o.atlas.kept_uvs, "{id}: UVs not kept");
+    let got = BitmapDesc {
+        image: std::sync::Arc::new(o.kd_image()),
+        filter: FilterType::Bilinear,
+        wrap: WrapMode::Clamp,
+        path: "kd".into(),
+    };
+    let (w, h) = (o.atlas.width, o.atlas.height);
+    let (mut se, mut n) = (0f64, 0usize);
+    for y in 0..truth.height {
+        for x in 0..truth.width {
+            let uv = Vec2::new((x as f32 + 0.5) / truth.width as f32, (y as f32 + 0.5) / truth.height as f32);
+            let (tx, ty) = ((uv.x * w as f32) as usize, (uv.y * h as f32) as usize);
+            if !o.observed[ty.min(h - 1) * w + tx.min(w - 1)] {
+                continue;
+            }
+            let (g, t) = (got.eval(uv), truth.get(x, y));
+            for c in 0..3 {
+                se += ((g[c] - t[c]) as f64).powi(2);
+            }
+            n += 3;
+        }
+    }
+    (10.0 * (1.0 / (se / n as f64)).log10(), n / 3)
+}
+
+/// Worst relative channel error of the constant-albedo objects and the lowest texture PSNR
+/// (printed per object).
+fn report(r: &DelightResult, desc: &SceneDesc) -> (f64, f64) {
+    let (mut worst, mut psnr_min) = (0f64, f64::INFINITY);
+    for s in desc.shapes.iter().filter(|s| s.emitter.is_none()) {
+        let o = r.objects.iter().find(|o| o.id == s.id).unwrap();
+        match &s.bsdf {
+            BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(c) } => {
+                let (m, t) = (o.mean_kd_observed(), c.0);
+                let rel: Vec<f64> = (0..3).map(|k| m[k] / t[k] as f64 - 1.0).collect();
+                println!(
+                    "{:12} kd {:.4} {:.4} {:.4}  truth {:.4} {:.4} {:.4}  rel {:+.2}% {:+.2}% {:+.2}%  seen {:.0}%",
+                    s.id,
+                    m[0],
+                    m[1],
+                    m[2],
+                    t[0],
+                    t[1],
+                    t[2],
+                    100.0 * rel[0],
+                    100.0 * rel[1],
+                    100.0 * rel[2],
+                    100.0 * o.seen_fraction
+                );
+                worst = rel.iter().fold(worst, |a, b| a.max(b.abs()));
+            }
+            BsdfDesc::Diffuse { reflectance: TextureDesc::Bitmap(b) } => {
+                let (p, n) = texture_psnr(r, &s.id, &b.image);
+                println!(
+                    "{:12} texture PSNR {p:.2} dB over {n} texels, seen {:.0}%",
+                    s.id,
+                    100.0 * o.seen_fraction
+                );
+                psnr_min = psnr_min.min(p);
+            }
+            other => panic!("{}: unexpected bsdf {other:?}", s.id),
+        }
+    }
+    for it in &r.iterations {
+        println!(
+            "iteration {}: max {:.2}% mean {:.2}% ({:.1} s)",
+            it.iteration,
+            100.0 * it.max_rel_error,
+            100.0 * it.mean_rel_error,
+            it.seconds
+        );
+    }
+    println!("warnings {:?}", r.warnings);
+    println!("worst constant-albedo error {:.2} %, lowest texture PSNR {psnr_min:.2} dB", 100.0 * worst);
+    (worst, psnr_min)
+}
+
+/// Multiplies each view's image by its gains (what a camera with those gains would record).
+fn apply_gains(views: &mut [View], gains: &[[f64; 3]]) {
+    for (v, g) in views.iter_mut().zip(gains) {
+        for p in &mut v.image.data {
+            for (x, f) in p.0.iter_mut().zip(g) {
+                *x *= *f as f32;
+            }
+        }
+    }
+}
+
+/// Worst relative error of the estimated gains (printed per view with the jackknife σ).
+fn gain_error(r: &DelightResult, truth: &[[f64; 3]]) -> f64 {
+    let g = r.view_gains.as_ref().expect("gains estimated");
+    let mut worst = 0f64;
+    for (vg, t) in g.views.iter().zip(truth) {
+        let e: [f64; 3] = std::array::from_fn(|c| vg.gain[c] / t[c] - 1.0);
+        println!(
+            "gain {:8} est {:.4} {:.4} {:.4}  true {:.4} {:.4} {:.4}  err {:+.3}% {:+.3}% {:+.3}%  σ {:.3}% {:.3}% {:.3}%",
+            vg.view,
+            vg.gain[0],
+            vg.gain[1],
+            vg.gain[2],
+            t[0],
+            t[1],
+            t[2],
+            100.0 * e[0],
+            100.0 * e[1],
+            100.0 * e[2],
+            100.0 * vg.std_err[0] / vg.gain[0],
+            100.0 * vg.std_err[1] / vg.gain[1],
+            100.0 * vg.std_err[2] / vg.gain[2],
+        );
+        worst = e.iter().fold(worst, |a, b| a.max(b.abs()));
+    }
+    println!("worst gain error {:.3} %", 100.0 * worst);
+    worst
+}
+
+/// Per channel, the median of `ln g` over the views is 0 (the estimator's scale convention: the
+/// albedos are then comparable with the truth; see `opal_inverse::delight::gains`).
+fn assert_median_view_exact(gains: &[[f64; 3]]) {
+    for c in 0..3 {
+        let mut l: Vec<f64> = gains.iter().map(|g| g[c].ln()).collect();
+        l.sort_by(f64::total_cmp);
+        let n = l.len();
+        let med = if n % 2 == 1 { l[n / 2] } else { 0.5 * (l[n / 2 - 1] + l[n / 2]) };
+        assert!(med.abs() < 1e-12, "channel {c}: median ln g = {med}");
+    }
+}
+
+/// Runs the de-lighting on the views × `gains` with `mode` and checks issue 26's acceptance.
+fn gained_run(gains: &[[f64; 3]], default: ViewGainMode) {
+    assert_median_view_exact(gains);
+    let (desc, mut views) = load();
+    apply_gains(&mut views, gains);
+    let mode = mode_or(default);
+    let r = delight(&desc, &views, &settings(mode), &|l| println!("{l}")).unwrap();
+    println!("mode {}:", mode.name());
+    let (worst, psnr) = report(&r, &desc);
+    if mode == default {
+        let gerr = gain_error(&r, gains);
+        assert!(r.warnings.iter().all(|w| !w.contains("gain")), "{:?}", r.warnings);
+        assert!(gerr < 0.005, "acceptance: gains within 0.5 %: worst {gerr}");
+        assert!(worst < 0.01, "acceptance: constant albedos within 1 %: worst {worst}");
+        assert!(psnr >= 38.0, "acceptance: textures ≥ 38 dB: {psnr}");
+    }
+}
+
+#[test]
+#[ignore = "needs OPAL_ROOM_DIR (bench/scripts/room_multiview.py); 10–20 min"]
+fn mitsuba_room_acceptance() {
+    let (desc, views) = load();
+    let r = delight(&desc, &views, &settings(ViewGainMode::Fixed), &|l| println!("{l}")).unwrap();
+    let (worst, psnr) = report(&r, &desc);
+    assert!(r.view_gains.is_none());
+    assert!(worst < 0.01, "acceptance: constant albedos within 1 %: worst {worst}");
+    assert!(psnr >= 38.0, "acceptance: textures ≥ 38 dB: {psnr}");
+}
+
+/// Exposure 0.85–1.2 times white balance ±5 % per channel; per channel views 2 and 3 are
+/// reciprocal and the other views lie on either side of them, so the median view is exact.
+#[test]
+#[ignore = "needs OPAL_ROOM_DIR (bench/scripts/room_multiview.py); 10–20 min"]
+fn mitsuba_room_view_gains_acceptance() {
+    let e = [0.85, 0.93, 0.98, 1.0 / 0.98, 1.1, 1.2];
+    let wb = [
+        [1.04, 0.96, 1.0],
+        [0.95, 0.99, 1.05],
+        [1.02, 0.97, 1.01],
+        [1.0 / 1.02, 1.0 / 0.97, 1.0 / 1.01],
+        [0.96, 1.05, 0.97],
+        [1.05, 0.95, 1.03],
+    ];
+    let gains: Vec<[f64; 3]> = e.iter().zip(wb).map(|(e, w)| w.map(|x| e * x)).collect();
+    gained_run(&gains, ViewGainMode::ExposureWb);
+}
+
+/// Issue 26's scenario: three of the six views × 1.15, 0.9 and 1.08, the others exact.
+#[test]
+#[ignore = "needs OPAL_ROOM_DIR (bench/scripts/room_multiview.py); 10–20 min"]
+fn mitsuba_room_three_views_off() {
+    let gains = [1.15, 1.0, 0.9, 1.0, 1.08, 1.0].map(|g| [g; 3]);
+    gained_run(&gains, ViewGainMode::Exposure);
+}
