@@ -285,6 +285,17 @@ impl<const N: usize> Neg for F<N> {
     }
 }
 
+/// [`crate::sampling::square_to_uniform_triangle`] (Heitz 2019), lane by lane (same bits: the
+/// branch becomes a select of both sides): the barycentrics (b0, b1) of the second and third
+/// corner. Used by the path tracer's wide vertex and the light tracer's path starts.
+#[inline(always)]
+pub fn square_to_uniform_triangle<const N: usize>(ux: F<N>, uy: F<N>) -> (F<N>, F<N>) {
+    let lt = ux.lt(uy);
+    let half_x = ux / 2.0;
+    let half_y = uy / 2.0;
+    (lt.select(half_x, ux - half_y), lt.select(uy - half_x, half_y))
+}
+
 /// [`crate::fastmath::sincos_2pi`], lane by lane (same bits).
 #[inline(always)]
 pub fn sincos_2pi<const N: usize>(u: F<N>) -> (F<N>, F<N>) {

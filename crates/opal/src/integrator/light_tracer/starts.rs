@@ -83,12 +83,7 @@ pub(super) fn start_lanes(i: &StartIn) -> StartOut {
     let ld = |a: &[[f32; W]; 3]| -> V { [F(a[0]), F(a[1]), F(a[2])] };
     let zero = F::<W>::splat(0.0);
     // square_to_uniform_triangle
-    let (ux, uy) = (F(i.u_pos[0]), F(i.u_pos[1]));
-    let lt = ux.lt(uy);
-    let half_x = ux / 2.0;
-    let half_y = uy / 2.0;
-    let b0 = lt.select(half_x, ux - half_y);
-    let b1 = lt.select(uy - half_x, half_y);
+    let (b0, b1) = crate::fastmath::wide::square_to_uniform_triangle(F(i.u_pos[0]), F(i.u_pos[1]));
     // p0·(1 − b0 − b1) + p1·b0 + p2·b1
     let w0 = 1.0 - b0 - b1;
     let (p0, p1, p2) = (ld(&i.p[0]), ld(&i.p[1]), ld(&i.p[2]));

@@ -25,7 +25,7 @@ use crate::geometry::Ray;
 use crate::light::Light;
 use crate::math::{Vec2, Vec3};
 use crate::sampling::Rng;
-use crate::scene::{Material, Scene, SurfaceInteraction};
+use crate::scene::{Material, Scene};
 use crate::spectrum::Spectrum;
 
 /// How the lanes' vertices are shaded.
@@ -176,11 +176,11 @@ fn shade_scalar(
 ) {
     for (k, slot) in lanes.iter_mut().enumerate() {
         let Some(lane) = slot else { continue };
-        let Some(hit) = hits.hit(k) else {
+        if hits.prim[k] < 0 {
             ended[k] = true;
             continue;
-        };
-        let si = scene.interaction(&lane.ray, &hit);
+        }
+        let si = scene.interaction_at(&lane.ray, hits.prim[k] as u32, hits.t[k], hits.b1[k], hits.b2[k]);
         let (shadow, next) = super::vertex(scene, s, &mut lane.st, &lane.ray, &si, &mut lane.rng);
         if let Some(sh) = shadow {
             pending.rays.set(k, &sh.ray);
@@ -207,8 +207,8 @@ fn shade_wide(
 ) {
     let sampler = scene.light_sampler().expect("wide shading needs a light sampler");
     inp.active = [0; PACKET];
-    // pass 1: the hits' geometry and emission; texture lines prefetched for pass 2
-    let mut sis: [Option<SurfaceInteraction>; PACKET] = [None; PACKET];
+    let mut p = [Vec3::ZERO; PACKET];
+    let mut any = false;
     for (k, slot) in lanes.iter_mut().enumerate() {
         let Some(lane) = slot else { continue };
         if hits.prim[k] < 0 {
@@ -221,15 +221,6 @@ fn shade_wide(
             ended[k] = true;
             continue;
         }
-        if let Material::Diffuse { reflectance, .. } = &scene.shapes[si.shape as usize].material {
-            reflectance.prefetch(si.uv);
-        }
-        sis[k] = Some(si);
-    }
-    let mut p = [Vec3::ZERO; PACKET];
-    let mut any = false;
-    for (k, slot) in lanes.iter_mut().enumerate() {
-        let (Some(lane), Some(si)) = (slot, &sis[k]) else { continue };
         let Material::Diffuse { reflectance, two_sided } = &scene.shapes[si.shape as usize].material else {
             unreachable!("wide shading runs on diffuse scenes only")
         };

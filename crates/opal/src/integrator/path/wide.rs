@@ -229,12 +229,7 @@ fn vertex_lanes(inp: &VertexIn) -> VertexOut {
     let beta = inp.beta.lanes();
 
     // next-event estimation: TriangleLight::point (Heitz's square-to-triangle map)
-    let (ux, uy) = (F(inp.ul[0]), F(inp.ul[1]));
-    let below = ux.lt(uy);
-    let b0a = ux / 2.0;
-    let b1b = uy / 2.0;
-    let bx = below.select(b0a, ux - b1b);
-    let by = below.select(uy - b0a, b1b);
+    let (bx, by) = crate::fastmath::wide::square_to_uniform_triangle(F(inp.ul[0]), F(inp.ul[1]));
     let w0 = 1.0 - bx - by;
     let (l0, l1, l2) = (inp.l0.lanes(), inp.l1.lanes(), inp.l2.lanes());
     let q = l0.scale(w0).add(l1.scale(bx)).add(l2.scale(by));
