@@ -17,6 +17,8 @@ use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{DelightResult, DelightSettings, ViewGainMode, ViewGainSettings, delight};
 use std::path::{Path, PathBuf};
 
+mod common;
+
 fn data() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox")
 }
@@ -223,45 +225,6 @@ fn known_gains() -> Vec<[f32; 3]> {
     e.iter().zip(wb).map(|(e, w)| w.map(|x| e * x)).collect()
 }
 
-/// Multiplies each view's image by its gains (what a camera with those gains would record).
-fn apply_known_gains(views: &mut [View], gains: &[[f32; 3]]) {
-    assert_eq!(views.len(), gains.len());
-    for (v, g) in views.iter_mut().zip(gains) {
-        for p in &mut v.image.data {
-            for (x, f) in p.0.iter_mut().zip(g) {
-                *x *= f;
-            }
-        }
-    }
-}
-
-/// Worst relative error of the estimated gains against the known ones.
-fn gain_errors(r: &DelightResult, truth: &[[f32; 3]]) -> f64 {
-    let g = r.view_gains.as_ref().expect("gains estimated");
-    let mut worst = 0f64;
-    for (vg, t) in g.views.iter().zip(truth) {
-        let e: Vec<f64> = (0..3).map(|c| vg.gain[c] / t[c] as f64 - 1.0).collect();
-        println!(
-            "gain {:10} est {:.4} {:.4} {:.4}  true {:.4} {:.4} {:.4}  err {:+.3}% {:+.3}% {:+.3}%  σ {:.3}% {:.3}% {:.3}%",
-            vg.view,
-            vg.gain[0],
-            vg.gain[1],
-            vg.gain[2],
-            t[0],
-            t[1],
-            t[2],
-            100.0 * e[0],
-            100.0 * e[1],
-            100.0 * e[2],
-            100.0 * vg.std_err[0] / vg.gain[0],
-            100.0 * vg.std_err[1] / vg.gain[1],
-            100.0 * vg.std_err[2] / vg.gain[2],
-        );
-        worst = e.iter().fold(worst, |a, b| a.max(b.abs()));
-    }
-    worst
-}
-
 /// The small round trip at 64×64 pixels, once with exact views (`fixed`) and once with the views
 /// multiplied by known gains (exposure 0.8–1.25, white balance ±5 %) and `exposure+wb`: the
 /// gains are recovered and the albedos come out as with the exact views.
@@ -274,13 +237,13 @@ fn round_trip_small_cbox_with_view_gains() {
     let worst0 = report(&r0, &desc);
     let mut views = exact.clone();
     let truth_gains = known_gains();
-    apply_known_gains(&mut views, &truth_gains);
+    common::apply_gains(&mut views, &truth_gains);
     let mut s = small_settings();
     s.view_gains = ViewGainSettings { mode: ViewGainMode::ExposureWb, ..Default::default() };
     let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
     println!("gained views, exposure+wb:");
     let worst = report(&r, &desc);
-    let gerr = gain_errors(&r, &truth_gains);
+    let gerr = common::gain_error(&r, &truth_gains);
     println!(
         "worst gain error {:.3} %; worst albedo error {:.2} % (exact views {:.2} %)",
         100.0 * gerr,
@@ -330,7 +293,7 @@ fn mitsuba_cbox_view_gains_acceptance() {
     let (mut views, warn) = read_views(&dir.join("transforms.json")).unwrap();
     assert!(warn.is_empty(), "{warn:?}");
     let truth_gains = known_gains();
-    apply_known_gains(&mut views, &truth_gains);
+    common::apply_gains(&mut views, &truth_gains);
     let mode = match std::env::var("OPAL_VIEW_GAINS").as_deref() {
         Ok("fixed") => ViewGainMode::Fixed,
         Ok("exposure") => ViewGainMode::Exposure,
@@ -357,7 +320,7 @@ fn mitsuba_cbox_view_gains_acceptance() {
         100.0 * worst
     );
     if mode == ViewGainMode::ExposureWb {
-        let gerr = gain_errors(&r, &truth_gains);
+        let gerr = common::gain_error(&r, &truth_gains);
         println!("worst gain error {:.3} %", 100.0 * gerr);
         assert!(gerr < 0.005, "acceptance: gains within 0.5 %: worst {gerr}");
         assert!(worst < 0.01, "acceptance: mean albedo within 1 %: worst {worst}");

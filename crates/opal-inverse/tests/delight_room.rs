@@ -33,6 +33,8 @@ use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{DelightResult, DelightSettings, ViewGainMode, ViewGainSettings, delight};
 use std::path::PathBuf;
 
+mod common;
+
 fn dir() -> PathBuf {
     PathBuf::from(
         std::env::var("OPAL_ROOM_DIR").expect("set OPAL_ROOM_DIR (bench/scripts/room_multiview.py)"),
@@ -153,45 +155,6 @@ fn report(r: &DelightResult, desc: &SceneDesc) -> (f64, f64) {
     (worst, psnr_min)
 }
 
-/// Multiplies each view's image by its gains (what a camera with those gains would record).
-fn apply_gains(views: &mut [View], gains: &[[f64; 3]]) {
-    for (v, g) in views.iter_mut().zip(gains) {
-        for p in &mut v.image.data {
-            for (x, f) in p.0.iter_mut().zip(g) {
-                *x *= *f as f32;
-            }
-        }
-    }
-}
-
-/// Worst relative error of the estimated gains (printed per view with the jackknife σ).
-fn gain_error(r: &DelightResult, truth: &[[f64; 3]]) -> f64 {
-    let g = r.view_gains.as_ref().expect("gains estimated");
-    let mut worst = 0f64;
-    for (vg, t) in g.views.iter().zip(truth) {
-        let e: [f64; 3] = std::array::from_fn(|c| vg.gain[c] / t[c] - 1.0);
-        println!(
-            "gain {:8} est {:.4} {:.4} {:.4}  true {:.4} {:.4} {:.4}  err {:+.3}% {:+.3}% {:+.3}%  σ {:.3}% {:.3}% {:.3}%",
-            vg.view,
-            vg.gain[0],
-            vg.gain[1],
-            vg.gain[2],
-            t[0],
-            t[1],
-            t[2],
-            100.0 * e[0],
-            100.0 * e[1],
-            100.0 * e[2],
-            100.0 * vg.std_err[0] / vg.gain[0],
-            100.0 * vg.std_err[1] / vg.gain[1],
-            100.0 * vg.std_err[2] / vg.gain[2],
-        );
-        worst = e.iter().fold(worst, |a, b| a.max(b.abs()));
-    }
-    println!("worst gain error {:.3} %", 100.0 * worst);
-    worst
-}
-
 /// Per channel, the median of `ln g` over the views is 0 (the estimator's scale convention: the
 /// albedos are then comparable with the truth; see `opal_inverse::delight::gains`).
 fn assert_median_view_exact(gains: &[[f64; 3]]) {
@@ -208,13 +171,13 @@ fn assert_median_view_exact(gains: &[[f64; 3]]) {
 fn gained_run(gains: &[[f64; 3]], default: ViewGainMode) {
     assert_median_view_exact(gains);
     let (desc, mut views) = load();
-    apply_gains(&mut views, gains);
+    common::apply_gains(&mut views, gains);
     let mode = mode_or(default);
     let r = delight(&desc, &views, &settings(mode), &|l| println!("{l}")).unwrap();
     println!("mode {}:", mode.name());
     let (worst, psnr) = report(&r, &desc);
     if mode == default {
-        let gerr = gain_error(&r, gains);
+        let gerr = common::gain_error(&r, gains);
         assert!(r.warnings.iter().all(|w| !w.contains("gain")), "{:?}", r.warnings);
         assert!(gerr < 0.005, "acceptance: gains within 0.5 %: worst {gerr}");
         assert!(worst < 0.01, "acceptance: constant albedos within 1 %: worst {worst}");
