@@ -4,6 +4,7 @@
 //! 2 usage / I-O / bad input. Errors print `error: {cause chain}`.
 
 mod cmd;
+mod glb;
 #[allow(dead_code)]
 mod plot;
 mod util;

@@ -2,8 +2,12 @@
 //! scene.xml loads and renders in Opal) and bad input (exit 2, message naming the problem, no
 //! output written).
 
+#[path = "support/outputs.rs"]
+mod outputs;
+
 use opal::integrator::path::{PathSettings, render};
 use opal::scene::Scene;
+use outputs::{check_glb, check_report_images};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -53,15 +57,20 @@ fn opal(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_opal")).args(args).output().unwrap()
 }
 
-#[test]
-fn tiny_run_writes_everything_and_scene_loads() {
-    let tmp = tempfile::tempdir().unwrap();
-    let tj = make_views(tmp.path(), 3, 24);
-    let out = tmp.path().join("out");
-    let o = opal(&[
+/// Runs a tiny de-lighting (3 views of 24², 16² textures, 2 iterations) of the test Cornell box
+/// into `dir/out`; returns the output folder and report.json.
+fn tiny_run(dir: &Path) -> (PathBuf, serde_json::Value) {
+    tiny_run_with(dir, &cbox(), &[])
+}
+
+/// As [`tiny_run`] on `scene` with `extra` arguments.
+fn tiny_run_with(dir: &Path, scene: &Path, extra: &[&str]) -> (PathBuf, serde_json::Value) {
+    let tj = make_views(dir, 3, 24);
+    let out = dir.join("out");
+    let mut args = vec![
         "delight",
         "--scene",
-        cbox().to_str().unwrap(),
+        scene.to_str().unwrap(),
         "--views",
         tj.to_str().unwrap(),
         "-o",
@@ -75,12 +84,21 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "--rerender-spp",
         "4",
         "--json",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let o = opal(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    (out, serde_json::from_slice(&o.stdout).unwrap())
+}
+
+#[test]
+fn tiny_run_writes_everything_and_scene_loads() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (out, report) = tiny_run(tmp.path());
     assert_eq!(report["iterations"].as_array().unwrap().len(), 2);
     for f in [
         "scene.xml",
+        "scene.glb",
         "report.json",
         "report.html",
         "convergence.png",
@@ -107,6 +125,8 @@ fn tiny_run_writes_everything_and_scene_loads() {
         .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with(".opal-tmp"))
         .count();
     assert_eq!(tmp_left, 0);
+    check_glb(&out, &report);
+    check_report_images(&out, &report);
 }
 
 /// `--view-gains exposure+wb` on views multiplied by known gains: report.json lists the gains
@@ -189,6 +209,122 @@ fn view_gains_in_report() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
+}
+
+/// The Khronos glTF validator (npm package `gltf-validator`, pinned version) accepts the
+/// `scene.glb` of a tiny run with 0 errors. Ignored: needs node and npm (installs the package
+/// into `$OPAL_GLTF_VALIDATOR_DIR`, default the system temporary folder's
+/// `opal-gltf-validator`, on first use): `cargo test -p opal-cli --test delight gltf_validator --
+/// --ignored --nocapture` (docs/testing.md).
+#[test]
+#[ignore = "needs node + npm (installs gltf-validator)"]
+fn gltf_validator_accepts_scene_glb() {
+    let dir = std::env::var_os("OPAL_GLTF_VALIDATOR_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| std::env::temp_dir().join("opal-gltf-validator"));
+    if !dir.join("node_modules/gltf-validator/package.json").exists() {
+        std::fs::create_dir_all(&dir).unwrap();
+        let o = Command::new("npm")
+            .args(["install", "--no-audit", "--no-fund", "--prefix"])
+            .arg(&dir)
+            .arg("gltf-validator@2.0.0-dev.3.10")
+            .output()
+            .expect("npm");
+        assert!(o.status.success(), "npm install: {}", String::from_utf8_lossy(&o.stderr));
+    }
+    // the test box with vertex normals (no `face_normals`) and every object unwrapped by Opal,
+    // so that NORMAL and the atlas's split vertices are validated too
+    let tmp = tempfile::tempdir().unwrap();
+    let data = cbox().parent().unwrap().to_path_buf();
+    let xml = std::fs::read_to_string(cbox())
+        .unwrap()
+        .replace("<boolean name=\"face_normals\" value=\"true\"/>", "")
+        .replace("value=\"meshes/", &format!("value=\"{}/meshes/", data.display()))
+        .replace("value=\"textures/", &format!("value=\"{}/textures/", data.display()));
+    let scene = tmp.path().join("scene_normals.xml");
+    std::fs::write(&scene, xml).unwrap();
+    let (out, report) = tiny_run_with(tmp.path(), &scene, &["--unwrap-all"]);
+    check_glb(&out, &report);
+    let glb = std::fs::read(out.join("scene.glb")).unwrap();
+    let (doc, _) = outputs::parse_glb(&glb);
+    let with_normals = doc["meshes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|m| m["primitives"][0]["attributes"].get("NORMAL").is_some())
+        .count();
+    let charts: u64 =
+        report["objects"].as_array().unwrap().iter().map(|o| o["charts"].as_u64().unwrap()).sum();
+    println!(
+        "{} meshes, {with_normals} with normals, {charts} charts",
+        doc["meshes"].as_array().unwrap().len()
+    );
+    assert!(with_normals > 0);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/support/gltf_validate.js");
+    let o = Command::new("node")
+        .arg(&script)
+        .arg(out.join("scene.glb"))
+        .env("NODE_PATH", dir.join("node_modules"))
+        .output()
+        .expect("node");
+    let text = String::from_utf8_lossy(&o.stdout);
+    let report: serde_json::Value = serde_json::from_str(&text)
+        .unwrap_or_else(|e| panic!("{e}: {text} {}", String::from_utf8_lossy(&o.stderr)));
+    let issues = &report["issues"];
+    println!(
+        "gltf-validator {}: {} errors, {} warnings, {} infos, {} hints; messages: {}",
+        report["validatorVersion"],
+        issues["numErrors"],
+        issues["numWarnings"],
+        issues["numInfos"],
+        issues["numHints"],
+        issues["messages"]
+    );
+    assert_eq!(issues["numErrors"], 0, "{}", issues["messages"]);
+    assert!(o.status.success());
+}
+
+/// report.html opened in headless Chromium (Debian `chromium`; `$CHROMIUM` to use another
+/// binary) with every host name unresolvable: every `<img>` loaded (`complete`, positive
+/// natural width). A copy of the page with a script that lists the broken images is dumped with
+/// `--dump-dom`. Ignored: needs Chromium: `cargo test -p opal-cli --test delight report_images
+/// -- --ignored --nocapture` (docs/testing.md).
+#[test]
+#[ignore = "needs chromium"]
+fn report_images_load_in_chromium() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (out, report) = tiny_run(tmp.path());
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    let probe = "<script>window.addEventListener('load', () => { const all = [...document.images]; \
+        const bad = all.filter(i => !i.complete || i.naturalWidth === 0).map(i => i.getAttribute('src')); \
+        const p = document.createElement('pre'); p.id = 'img-check'; \
+        p.textContent = 'IMGCHECK ' + all.length + ' ' + JSON.stringify(bad); document.body.appendChild(p); });</script>";
+    let page = out.join("report_check.html");
+    std::fs::write(&page, html.replace("</body>", &format!("{probe}</body>"))).unwrap();
+    let chromium = std::env::var("CHROMIUM").unwrap_or_else(|_| "chromium".into());
+    let o = Command::new(&chromium)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--host-resolver-rules=MAP * ~NOTFOUND",
+            "--dump-dom",
+        ])
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .unwrap_or_else(|e| panic!("{chromium}: {e}"));
+    let dom = String::from_utf8_lossy(&o.stdout);
+    let line =
+        dom.lines().find_map(|l| l.split("<pre id=\"img-check\">IMGCHECK ").nth(1)).unwrap_or_else(|| {
+            panic!("no image check in the dumped page: {}", String::from_utf8_lossy(&o.stderr))
+        });
+    let (n, bad) = line.split_once(' ').unwrap();
+    let n: usize = n.parse().unwrap();
+    let bad = bad.split("</pre>").next().unwrap();
+    println!("chromium: {n} images, not loaded: {bad}");
+    assert_eq!(n, outputs::img_tags(&html).len());
+    assert!(n >= 3 * report["rerenders"].as_array().unwrap().len());
+    assert_eq!(bad, "[]", "images that did not load");
 }
 
 fn walk(d: &Path) -> Vec<PathBuf> {

@@ -1,6 +1,9 @@
 //! `opal delight`: recovers diffuse albedo textures from multi-view HDR images (method C, see
 //! `opal_inverse::delight`) and writes textures, meshes with UVs, a Mitsuba 3 scene using them,
-//! error maps, a convergence plot, re-renders and report.json / report.html.
+//! a glTF 2.0 binary of the recovered objects (`scene.glb`, see `crate::glb`), error maps, a
+//! convergence plot, re-renders and report.json / report.html.
+
+mod html;
 
 use crate::util;
 use anyhow::{Context, Result, bail};
@@ -299,15 +302,24 @@ fn write_outputs(
     // textures, meshes, error maps: one task per object and iteration (PNG/EXR encoding of the
     // large maps is serial per file)
     use rayon::prelude::*;
+    // the albedo PNGs (8-bit sRGB) are encoded once: albedo/<obj>.png and the glTF textures
+    let albedo_png: Vec<Vec<u8>> = r
+        .objects
+        .par_iter()
+        .map(|o| -> Result<Vec<u8>> {
+            let mut c = std::io::Cursor::new(Vec::new());
+            opal::image::write::write_png_srgb(&o.kd_image(), 1.0, &mut c)?;
+            Ok(c.into_inner())
+        })
+        .collect::<Result<_>>()?;
     r.objects
         .par_iter()
         .enumerate()
         .flat_map_iter(|(j, o)| (0..r.iterations.len()).map(move |k| (j, o, Some(k))).chain([(j, o, None)]))
         .try_for_each(|(j, o, k)| -> Result<()> {
             let Some(k) = k else {
-                let img = o.kd_image();
-                exr(&out.join(format!("albedo/{}.exr", o.id)), &img)?;
-                png(&out.join(format!("albedo/{}.png", o.id)), &img, 1.0)?;
+                exr(&out.join(format!("albedo/{}.exr", o.id)), &o.kd_image())?;
+                util::write_bytes_atomic(&out.join(format!("albedo/{}.png", o.id)), &albedo_png[j])?;
                 return util::write_bytes_atomic(
                     &out.join(format!("meshes/{}.obj", o.id)),
                     obj_text(o).as_bytes(),
@@ -321,7 +333,7 @@ fn write_outputs(
                     &abs,
                     o.atlas.width,
                     o.atlas.height,
-                    (0.0, 0.1),
+                    html::TEXEL_ERROR_RANGE,
                     std::io::BufWriter::new(f),
                 )?)
             })?;
@@ -349,6 +361,7 @@ fn write_outputs(
             "clamped_texel_channels": o.clamped,
             "texture": format!("albedo/{}.exr", o.id),
             "mesh": format!("meshes/{}.obj", o.id),
+            "last_error_map": r.iterations.last().map(|it| format!("errors/iter_{:02}_{}.png", it.iteration, o.id)),
         }));
     }
     // scene.xml
@@ -357,6 +370,15 @@ fn write_outputs(
     let scene_dir = a.scene.parent().unwrap_or(Path::new("."));
     let new_xml = rewrite_scene(&text, scene_dir, &r.objects, desc)?;
     util::write_bytes_atomic(&out.join("scene.xml"), new_xml.as_bytes())?;
+    // scene.glb: the recovered objects with their albedo textures (glTF 2.0 binary)
+    let glb_objects: Vec<crate::glb::GlbObject> = r
+        .objects
+        .iter()
+        .zip(&albedo_png)
+        .map(|(o, p)| crate::glb::GlbObject { name: &o.id, mesh: &o.atlas.mesh, base_colour_png: p })
+        .collect();
+    let generator = format!("opal delight {}", env!("CARGO_PKG_VERSION"));
+    util::write_bytes_atomic(&out.join("scene.glb"), &crate::glb::glb_bytes(&glb_objects, &generator)?)?;
     // convergence plot
     let series = |f: &dyn Fn(&opal_inverse::delight::IterationStats) -> f64| -> Vec<(f64, f64)> {
         r.iterations.iter().map(|i| (i.iteration as f64, 100.0 * f(i))).collect()
@@ -411,16 +433,25 @@ fn write_outputs(
         let shapes: Vec<usize> = r.objects.iter().map(|o| o.shape).collect();
         for (vi, v) in views.iter().enumerate() {
             let ro = render(&rscene, vi, &ps, &|| {});
+            // previews of the photo and the re-render at one exposure, and their error map
+            let exposure = html::preview_exposure(&v.image);
             exr(&out.join(format!("rerender/{}.exr", v.name)), &ro.image)?;
-            png(&out.join(format!("rerender/{}.png", v.name)), &ro.image, 1.0)?;
+            png(&out.join(format!("rerender/{}.png", v.name)), &ro.image, exposure)?;
             let mut photo = v.image.clone();
             photo
                 .data
                 .iter_mut()
                 .filter(|p| !p.is_finite())
                 .for_each(|p| *p = opal::spectrum::Spectrum::ZERO);
-            png(&out.join(format!("photo/{}.png", v.name)), &photo, 1.0)?;
-            rerenders.push(json!({"view": v.name, "photo": format!("photo/{}.png", v.name), "rerender": format!("rerender/{}.png", v.name)}));
+            png(&out.join(format!("photo/{}.png", v.name)), &photo, exposure)?;
+            let (err, mean_err) = html::view_error(&v.image, &ro.image);
+            let err_png = format!("errors/view_{}.png", v.name);
+            html::write_signed_error_png(&out.join(&err_png), &err, v.image.width, v.image.height)?;
+            rerenders.push(json!({
+                "view": v.name, "photo": format!("photo/{}.png", v.name),
+                "rerender": format!("rerender/{}.png", v.name), "exposure": exposure,
+                "error_map": err_png, "rel_bias_luminance": mean_err,
+            }));
             let masks = object_masks(&scene, v, &shapes);
             for (o, m) in r.objects.iter().zip(masks) {
                 let n = m.iter().filter(|&&b| b).count();
@@ -499,13 +530,16 @@ fn write_outputs(
         "regions": regions,
         "max_region_rel_error_luminance": max_region_err,
         "rerenders": rerenders,
+        "view_error_range": html::VIEW_ERROR_RANGE,
+        "texel_error_range": html::TEXEL_ERROR_RANGE,
         "light_paths_total": r.light_paths,
         "timings_seconds": &timings,
         "cpu_seconds": &cpu,
-        "outputs": {"scene": "scene.xml", "convergence_plot": "convergence.png", "report_html": "report.html"},
+        "outputs": {"scene": "scene.xml", "gltf": "scene.glb", "convergence_plot": "convergence.png", "report_html": "report.html"},
     });
     util::write_bytes_atomic(&out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
-    util::write_bytes_atomic(&out.join("report.html"), html(&report).as_bytes())?;
+    html::write_colour_bars(out)?;
+    util::write_bytes_atomic(&out.join("report.html"), html::html(&report).as_bytes())?;
     let worst = regions.iter().max_by(|a, b| {
         let f = |r: &serde_json::Value| r["rel_error_luminance"].as_f64().unwrap_or(0.0).abs();
         f(a).total_cmp(&f(b))
@@ -525,95 +559,6 @@ fn write_outputs(
         100.0 * noise
     ));
     Ok(report)
-}
-
-fn html(r: &serde_json::Value) -> String {
-    let mut s = String::from(
-        "<!doctype html><html><head><meta charset=\"utf-8\"><title>opal delight report</title><style>body{font-family:sans-serif}td,th{padding:2px 8px;text-align:right}img{image-rendering:pixelated;width:256px}</style></head><body><h1>De-lighting report</h1>",
-    );
-    let _ = write!(
-        s,
-        "<p>converged: {} — max region error (luminance): {:.3} %</p><img src=\"convergence.png\" style=\"width:480px\">",
-        r["converged"],
-        100.0 * r["max_region_rel_error_luminance"].as_f64().unwrap_or(f64::NAN)
-    );
-    s.push_str("<h2>Objects</h2><table><tr><th>object</th><th>seen</th><th>mean albedo (seen)</th><th>texture</th></tr>");
-    for o in r["objects"].as_array().into_iter().flatten() {
-        let m = &o["mean_albedo_seen"];
-        let _ = write!(
-            s,
-            "<tr><td>{}</td><td>{:.1} %</td><td>{:.4} {:.4} {:.4}</td><td><img src=\"{}\" style=\"width:96px\"></td></tr>",
-            o["id"].as_str().unwrap_or(""),
-            100.0 * o["seen_fraction"].as_f64().unwrap_or(0.0),
-            m[0].as_f64().unwrap_or(0.0),
-            m[1].as_f64().unwrap_or(0.0),
-            m[2].as_f64().unwrap_or(0.0),
-            o["texture"].as_str().unwrap_or("").replace(".exr", ".png")
-        );
-    }
-    s.push_str("</table>");
-    if let Some(g) = r["view_gains"].as_object() {
-        let _ = write!(
-            s,
-            "<h2>View gains ({}, median view exact)</h2><table><tr><th>view</th><th>gain R G B</th><th>± std. err.</th><th>samples</th><th>far</th></tr>",
-            g["mode"].as_str().unwrap_or("")
-        );
-        for v in g["views"].as_array().into_iter().flatten() {
-            let f = |x: &serde_json::Value, c: usize| x[c].as_f64().unwrap_or(f64::NAN);
-            let _ = write!(
-                s,
-                "<tr><td>{}</td><td>{:.4} {:.4} {:.4}</td><td>{:.4} {:.4} {:.4}</td><td>{}</td><td>{}</td></tr>",
-                v["view"].as_str().unwrap_or(""),
-                f(&v["gain"], 0),
-                f(&v["gain"], 1),
-                f(&v["gain"], 2),
-                f(&v["std_err"], 0),
-                f(&v["std_err"], 1),
-                f(&v["std_err"], 2),
-                v["samples"],
-                if v["far_from_others"].as_bool() == Some(true) { "yes" } else { "" }
-            );
-        }
-        s.push_str("</table>");
-    }
-    s.push_str("<h2>Regions: photo vs re-render</h2><table><tr><th>view</th><th>object</th><th>px</th><th>mean L</th><th>L RMS</th><th>RGB</th><th>CIE xy</th><th>rel. err.</th></tr>");
-    for g in r["regions"].as_array().into_iter().flatten() {
-        for (k, who) in [("photo", "photo"), ("rerender", "re-render")] {
-            let p = &g[k];
-            let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
-            let _ = write!(
-                s,
-                "<tr><td>{}</td><td>{} ({who})</td><td>{}</td><td>{:.6}</td><td>{:.6}</td><td>{:.6} {:.6} {:.6}</td><td>{:.6} {:.6}</td><td>{}</td></tr>",
-                g["view"].as_str().unwrap_or(""),
-                g["object"].as_str().unwrap_or(""),
-                g["pixels"],
-                f(&p["mean_luminance"]),
-                f(&p["luminance_rms"]),
-                f(&p["mean_rgb"][0]),
-                f(&p["mean_rgb"][1]),
-                f(&p["mean_rgb"][2]),
-                f(&p["xy"][0]),
-                f(&p["xy"][1]),
-                if k == "rerender" {
-                    format!("{:+.3} %", 100.0 * f(&g["rel_error_luminance"]))
-                } else {
-                    String::new()
-                }
-            );
-        }
-    }
-    s.push_str("</table><h2>Views: photo | re-render</h2>");
-    for v in r["rerenders"].as_array().into_iter().flatten() {
-        let _ = write!(
-            s,
-            "<p>{}<br><img src=\"{}\"> <img src=\"{}\"></p>",
-            v["view"].as_str().unwrap_or(""),
-            v["photo"].as_str().unwrap_or(""),
-            v["rerender"].as_str().unwrap_or("")
-        );
-    }
-    s.push_str("</body></html>\n");
-    s
 }
 
 /// Runs `opal delight`; returns the exit code.
