@@ -156,6 +156,23 @@ pub fn img_tags(html: &str) -> Vec<BTreeMap<String, String>> {
     tags
 }
 
+/// A URL path with `%XX` escapes decoded.
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' && i + 2 < b.len() {
+            out.push(u8::from_str_radix(&s[i + 1..i + 3], 16).unwrap());
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).unwrap()
+}
+
 /// report.html: every `<img>` source is a relative path inside the output folder to a PNG that
 /// decodes; no scripts, style sheets or fonts from elsewhere; per view the photo, the re-render
 /// and the error map with a colour bar each; per object a texture preview at least 512 px wide.
@@ -165,7 +182,7 @@ pub fn check_report_images(out: &Path, report: &serde_json::Value) {
         assert!(!html.contains(bad), "report.html contains '{bad}'");
     }
     let tags = img_tags(&html);
-    let srcs: Vec<&str> = tags.iter().map(|t| t["src"].as_str()).collect();
+    let srcs: Vec<String> = tags.iter().map(|t| percent_decode(&t["src"])).collect();
     for s in &srcs {
         assert!(
             !s.is_empty() && !s.starts_with('/') && !s.contains(':') && !s.split('/').any(|c| c == ".."),
@@ -177,7 +194,7 @@ pub fn check_report_images(out: &Path, report: &serde_json::Value) {
     for v in report["rerenders"].as_array().unwrap() {
         for k in ["photo", "rerender", "error_map"] {
             let p = v[k].as_str().unwrap();
-            assert!(srcs.contains(&p), "{p} not shown");
+            assert!(srcs.iter().any(|s| s == p), "{p} not shown");
         }
     }
     let rr = report["rerenders"].as_array().unwrap().len();
@@ -185,7 +202,10 @@ pub fn check_report_images(out: &Path, report: &serde_json::Value) {
     assert!(bars >= 3 * rr, "{bars} colour bars for {rr} views");
     for o in report["objects"].as_array().unwrap() {
         let tex = o["texture"].as_str().unwrap().replace(".exr", ".png");
-        let t = tags.iter().find(|t| t["src"] == tex).unwrap_or_else(|| panic!("{tex} not shown"));
+        let t = tags
+            .iter()
+            .find(|t| percent_decode(&t["src"]) == tex)
+            .unwrap_or_else(|| panic!("{tex} not shown"));
         let w: usize = t["width"].parse().unwrap();
         assert!(w >= 512, "{tex} shown {w} px wide");
     }

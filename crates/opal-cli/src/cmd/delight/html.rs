@@ -203,6 +203,20 @@ fn error_bar(src: &str, range: (f32, f32), caption: &str) -> String {
     bar(src, &ticks, caption)
 }
 
+/// A relative file path as a URL path: bytes other than letters, digits, `-._~/` percent-encoded
+/// (object and view names may hold `#`, `?`, `%` or spaces).
+fn src(path: &str) -> String {
+    let mut s = String::with_capacity(path.len());
+    for b in path.bytes() {
+        if b.is_ascii_alphanumeric() || b"-._~/".contains(&b) {
+            s.push(b as char);
+        } else {
+            let _ = write!(s, "%{b:02X}");
+        }
+    }
+    s
+}
+
 fn esc(s: &str) -> String {
     s.replace('&', "&amp;").replace('"', "&quot;").replace('<', "&lt;").replace('>', "&gt;")
 }
@@ -286,7 +300,7 @@ fn views_section(s: &mut String, r: &Value) {
             let _ = write!(
                 s,
                 "<figure class=\"v\"><figcaption>{title}</figcaption><img class=\"px\" src=\"{}\" alt=\"{title} {name}\">{}</figure>",
-                esc(v[key].as_str().unwrap_or("")),
+                src(v[key].as_str().unwrap_or("")),
                 srgb_bar(e, "radiance")
             );
         }
@@ -294,7 +308,7 @@ fn views_section(s: &mut String, r: &Value) {
             s,
             "<figure class=\"v\"><figcaption>error (bias {:+.2} %)</figcaption><img class=\"px\" src=\"{}\" alt=\"error {name}\">{}</figure></div>",
             100.0 * f(&v["rel_bias_luminance"]),
-            esc(v["error_map"].as_str().unwrap_or("")),
+            src(v["error_map"].as_str().unwrap_or("")),
             error_bar(BAR_SIGNED, range, "relative luminance error (3×3 mean)")
         );
     }
@@ -332,14 +346,14 @@ fn objects_section(s: &mut String, r: &Value) {
         let _ = write!(
             s,
             "<figure style=\"width:{show}px;max-width:100%\"><figcaption>albedo</figcaption><img class=\"tex\" src=\"{}\" width=\"{show}\" alt=\"albedo {id}\">{}</figure>",
-            esc(&o["texture"].as_str().unwrap_or("").replace(".exr", ".png")),
+            src(&o["texture"].as_str().unwrap_or("").replace(".exr", ".png")),
             srgb_bar(1.0, "albedo")
         );
         if let Some(e) = o["last_error_map"].as_str() {
             let _ = write!(
                 s,
                 "<figure style=\"width:{show}px;max-width:100%\"><figcaption>error, last iteration</figcaption><img class=\"tex\" src=\"{}\" width=\"{show}\" alt=\"error {id}\">{}</figure>",
-                esc(e),
+                src(e),
                 error_bar(BAR_ERROR, range, "|relative error| per texel")
             );
         }
@@ -411,5 +425,6 @@ mod tests {
         assert_eq!(e[22], 0.0);
         assert!((mean - 0.001).abs() < 1e-6, "{mean}");
         assert_eq!(diverging_colour(0.5), [247, 247, 247]);
+        assert_eq!(src("photo/IMG 1#ä.png"), "photo/IMG%201%23%C3%A4.png");
     }
 }
