@@ -226,8 +226,8 @@ h2{margin-top:32px;border-bottom:1px solid #ccc}\
 td,th{padding:2px 8px;text-align:right}\
 .row{display:flex;flex-wrap:wrap;gap:20px;align-items:flex-start;margin-bottom:24px}\
 figure{margin:0}figure.v{width:min(440px,31vw)}figcaption{font-weight:bold;margin-bottom:4px}\
-img.px{image-rendering:pixelated;display:block;width:100%;height:auto;background:#000}\
-img.tex{image-rendering:pixelated;display:block;height:auto;max-width:100%}\
+img.px{display:block;width:100%;height:auto;background:#000}\
+img.tex{display:block;height:auto;max-width:100%}img.up{image-rendering:pixelated}\
 .cb{margin-top:6px;font-size:12px}img.bar{display:block;width:100%;height:14px;border:1px solid #888;box-sizing:border-box}\
 .ticks{position:relative;height:16px}.ticks span{position:absolute;transform:translateX(-50%);white-space:nowrap}\
 .ticks span:first-child{transform:none}.ticks span:last-child{transform:translateX(-100%)}\
@@ -295,18 +295,20 @@ fn views_section(s: &mut String, r: &Value) {
     for v in rr {
         let name = esc(v["view"].as_str().unwrap_or(""));
         let e = f(&v["exposure"]);
+        // nearest-neighbour when the view is enlarged (figures are ≤ 440 px wide)
+        let up = if v["size"][0].as_u64().is_some_and(|w| w < 440) { " up" } else { "" };
         let _ = write!(s, "<h3>{name}</h3><div class=\"row\">");
         for (key, title) in [("photo", "photo"), ("rerender", "re-render")] {
             let _ = write!(
                 s,
-                "<figure class=\"v\"><figcaption>{title}</figcaption><img class=\"px\" src=\"{}\" alt=\"{title} {name}\">{}</figure>",
+                "<figure class=\"v\"><figcaption>{title}</figcaption><img class=\"px{up}\" src=\"{}\" alt=\"{title} {name}\">{}</figure>",
                 src(v[key].as_str().unwrap_or("")),
                 srgb_bar(e, "radiance")
             );
         }
         let _ = write!(
             s,
-            "<figure class=\"v\"><figcaption>error (bias {:+.2} %)</figcaption><img class=\"px\" src=\"{}\" alt=\"error {name}\">{}</figure></div>",
+            "<figure class=\"v\"><figcaption>error (bias {:+.2} %)</figcaption><img class=\"px{up}\" src=\"{}\" alt=\"error {name}\">{}</figure></div>",
             100.0 * f(&v["rel_bias_luminance"]),
             src(v["error_map"].as_str().unwrap_or("")),
             error_bar(BAR_SIGNED, range, "relative luminance error (3×3 mean)")
@@ -327,6 +329,8 @@ fn objects_section(s: &mut String, r: &Value) {
         let (w, h) = (o["resolution"][0].as_u64().unwrap_or(1), o["resolution"][1].as_u64().unwrap_or(1));
         // at least 512 px, at most 1024 px (the page scales down further on narrow windows)
         let show = w.clamp(512, 1024);
+        // nearest-neighbour when enlarging; the browser's filter when a large map is reduced
+        let up = if show > w { " up" } else { "" };
         let m = &o["mean_albedo_seen"];
         let _ = write!(
             s,
@@ -345,14 +349,14 @@ fn objects_section(s: &mut String, r: &Value) {
         );
         let _ = write!(
             s,
-            "<figure style=\"width:{show}px;max-width:100%\"><figcaption>albedo</figcaption><img class=\"tex\" src=\"{}\" width=\"{show}\" alt=\"albedo {id}\">{}</figure>",
+            "<figure style=\"width:{show}px;max-width:100%\"><figcaption>albedo</figcaption><img class=\"tex{up}\" src=\"{}\" width=\"{show}\" alt=\"albedo {id}\">{}</figure>",
             src(&o["texture"].as_str().unwrap_or("").replace(".exr", ".png")),
             srgb_bar(1.0, "albedo")
         );
         if let Some(e) = o["last_error_map"].as_str() {
             let _ = write!(
                 s,
-                "<figure style=\"width:{show}px;max-width:100%\"><figcaption>error, last iteration</figcaption><img class=\"tex\" src=\"{}\" width=\"{show}\" alt=\"error {id}\">{}</figure>",
+                "<figure style=\"width:{show}px;max-width:100%\"><figcaption>error, last iteration</figcaption><img class=\"tex{up}\" src=\"{}\" width=\"{show}\" alt=\"error {id}\">{}</figure>",
                 src(e),
                 error_bar(BAR_ERROR, range, "|relative error| per texel")
             );

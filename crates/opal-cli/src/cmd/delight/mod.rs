@@ -450,7 +450,7 @@ fn write_outputs(
             rerenders.push(json!({
                 "view": v.name, "photo": format!("photo/{}.png", v.name),
                 "rerender": format!("rerender/{}.png", v.name), "exposure": exposure,
-                "error_map": err_png, "rel_bias_luminance": mean_err,
+                "error_map": err_png, "rel_bias_luminance": mean_err, "size": [v.image.width, v.image.height],
             }));
             let masks = object_masks(&scene, v, &shapes);
             for (o, m) in r.objects.iter().zip(masks) {
