@@ -2,8 +2,11 @@
 //! watertightness on closed meshes, no self-intersection with the ray-offset helpers, mutual
 //! visibility inside a convex mesh with `spawn_ray_to`.
 
+use opal::accel::packet::RayPacket;
 use opal::accel::scenes::{cornell_box, mesh_triangles, random_soup, sphere_mesh};
-use opal::accel::{BruteForce, Bvh, TinyAccel, intersect_triangle_mt, offset_ray_origin, spawn_ray_to};
+use opal::accel::{
+    Accel, BruteForce, Bvh, SplitAccel, TinyAccel, intersect_triangle_mt, offset_ray_origin, spawn_ray_to,
+};
 use opal::geometry::{Ray, TriangleMesh};
 use opal::math::Vec3;
 use opal::sampling::Rng;
@@ -367,4 +370,105 @@ fn spawn_ray_to_sees_blockers() {
     let q0 = Vec3::new(0.0, -1.0, 0.9);
     let r = spawn_ray_to(q0, Vec3::Y, Vec3::new(0.0, 0.99, 0.1), -Vec3::Y);
     assert!(!bvh.occluded(&r));
+}
+
+/// The Cornell box with a dense displaced sphere (3 540 triangles) where the tall box stands,
+/// followed by the box's triangles: the room's walls are set apart ([`Accel::Split`]).
+fn room_with_object() -> Vec<[Vec3; 3]> {
+    let ball = mesh_triangles(&sphere_mesh(31, 60, 0.05, 9));
+    let mut tris: Vec<[Vec3; 3]> = ball
+        .iter()
+        .map(|t| t.map(|p| p * Vec3::new(0.3, 0.6, 0.3) + Vec3::new(-0.33, -0.38, -0.29)))
+        .collect();
+    tris.extend(cornell_box());
+    tris
+}
+
+/// `Accel::Split` (walls in the packet kernel, the object behind the BVH) gives brute force's
+/// hits — the same `t` and barycentrics bits, the same triangle except on exact ties — for
+/// rays from inside the room and from the object's surface (offset as the integrators do), and
+/// its packet calls return the single-ray answers lane by lane, bit for bit.
+#[test]
+fn split_accel_matches_brute_force_in_a_room_with_an_object() {
+    let tris = room_with_object();
+    let accel = Accel::new(tris.clone());
+    let Accel::Split(split) = &accel else { panic!("the room's walls are set apart") };
+    assert!(split.big_count() >= 10 && split.big_count() <= 32, "{}", split.big_count());
+    assert_eq!(accel.len(), tris.len());
+    let bf = BruteForce::new(tris.clone());
+    let (mut hits, mut object_hits, mut packets) = (0, 0, 0);
+    let n_ball = tris.len() - cornell_box().len();
+    let mut rays = Vec::new();
+    for i in 0..8_000u64 {
+        let mut rng = Rng::new(17, 3, i);
+        let ray = if i % 2 == 0 {
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 1.98 - 0.99;
+            Ray::new(o, random_dir(&mut rng))
+        } else {
+            // leaving a point of the object, on either side
+            let (p, n) = surface_point(&tris, (rng.next_u32() as usize) % n_ball, &mut rng);
+            let d = random_dir(&mut rng);
+            Ray::new(offset_ray_origin(p, n, d), d)
+        };
+        let ray = if i % 5 == 0 { Ray { tmax: 0.5, ..ray } } else { ray };
+        let got = accel.intersect(&ray);
+        let want = bf.intersect(&ray);
+        match (got, want) {
+            (None, None) => {}
+            (Some(a), Some(b)) => {
+                assert_eq!(a.t.to_bits(), b.t.to_bits(), "{a:?} {b:?} {ray:?}");
+                if a.prim == b.prim {
+                    assert_eq!((a.b1.to_bits(), a.b2.to_bits()), (b.b1.to_bits(), b.b2.to_bits()));
+                } else {
+                    let tie = opal::accel::intersect_triangle(&ray, &tris[a.prim as usize], f32::INFINITY);
+                    assert_eq!(tie.map(|h| h.0), Some(b.t), "prim differs without a tie: {a:?} {b:?}");
+                }
+                hits += 1;
+                object_hits += ((a.prim as usize) < n_ball) as usize;
+            }
+            _ => panic!("hit/miss differs: {got:?} {want:?} {ray:?}"),
+        }
+        assert_eq!(accel.occluded(&ray), bf.occluded(&ray), "{ray:?}");
+        rays.push(ray);
+    }
+    for chunk in rays.chunks(8) {
+        let mut p = RayPacket::default();
+        for (l, r) in chunk.iter().enumerate() {
+            p.set(l, r);
+        }
+        // lanes past the chunk stay inactive (tmax 0)
+        let h = accel.intersect8(&p);
+        let occ = accel.occluded8(&p);
+        for (l, r) in chunk.iter().enumerate() {
+            let single = accel.intersect(r);
+            assert_eq!(
+                h.hit(l).map(|x| (x.prim, x.t.to_bits(), x.b1.to_bits(), x.b2.to_bits())),
+                single.map(|x| (x.prim, x.t.to_bits(), x.b1.to_bits(), x.b2.to_bits())),
+                "lane {l} {r:?}"
+            );
+            assert_eq!(occ >> l & 1 == 1, accel.occluded(r), "lane {l} {r:?}");
+        }
+        packets += 1;
+    }
+    assert!(
+        hits > 5_000 && object_hits > 2_000,
+        "{hits} hits, {object_hits} on the object (the rays must probe both parts)"
+    );
+    assert_eq!(packets, 1_000);
+}
+
+/// Without large triangles (a sphere alone, a random soup) nothing is set apart: a plain BVH.
+#[test]
+fn split_accel_only_where_large_triangles_stand_apart() {
+    let ball = mesh_triangles(&sphere_mesh(31, 60, 0.05, 9));
+    assert!(SplitAccel::choose(&ball).is_empty());
+    assert!(matches!(Accel::new(ball), Accel::Bvh(_)));
+    let soup = random_soup(5_000, 0.05, 4);
+    assert!(SplitAccel::choose(&soup).is_empty());
+    let room = room_with_object();
+    let big = SplitAccel::choose(&room);
+    let n_ball = room.len() - cornell_box().len();
+    // the walls, floor and ceiling (10 triangles) are among the chosen; no object triangle is
+    assert!(big.iter().all(|&i| i as usize >= n_ball), "{big:?}");
+    assert!(big.len() >= 10, "{big:?}");
 }

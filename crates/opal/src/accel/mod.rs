@@ -9,6 +9,8 @@
 //!   robust ray spawning ([`offset_ray_origin`], [`spawn_ray`], [`spawn_ray_to`]).
 //! * [`Bvh`]: the 8-wide BVH for every scene size (binned SAH, leaves of eight triangles tested
 //!   at once, AVX2 traversal; see [`bvh`]).
+//! * [`SplitAccel`]: a few large triangles (a room's walls) apart in the packet kernel, the
+//!   rest behind a [`Bvh`] entered only by the rays that reach it (see [`split`]).
 //! * [`TinyAccel`] + [`packet::PacketAccel`]: scenes of at most [`tiny::TINY_MAX`] triangles,
 //!   every triangle tested eight at a time, or eight rays at once (one per SIMD lane) — kept
 //!   because it is measurably faster than the BVH there (`examples/accel_compare.rs`,
@@ -20,10 +22,12 @@ pub mod bvh;
 pub(crate) mod group;
 pub mod packet;
 pub mod scenes;
+pub mod split;
 pub mod tiny;
 pub mod triangle;
 
 pub use bvh::Bvh;
+pub use split::SplitAccel;
 pub use tiny::TinyAccel;
 pub use triangle::{TriRay, intersect_triangle, offset_ray_origin, spawn_ray, spawn_ray_to};
 
@@ -44,17 +48,21 @@ pub enum Accel {
     },
     /// Any size: the 8-wide BVH.
     Bvh(Bvh),
+    /// A few large triangles apart (packet tests) and the rest behind a BVH: scenes such as
+    /// an object in a room ([`split`]).
+    Split(SplitAccel),
 }
 
 impl Accel {
-    /// The structure for `tris`: [`Accel::Tiny`] up to [`tiny::TINY_MAX`] triangles, else the
+    /// The structure for `tris`: [`Accel::Tiny`] up to [`tiny::TINY_MAX`] triangles, else
+    /// [`Accel::Split`] when [`SplitAccel::choose`] sets large triangles apart, else the
     /// [`Bvh`].
     pub fn new(tris: Vec<[Vec3; 3]>) -> Accel {
         if tris.len() <= tiny::TINY_MAX {
-            Accel::Tiny { single: TinyAccel::new(tris.clone()), packet: PacketAccel::new(tris) }
-        } else {
-            Accel::Bvh(Bvh::new(tris))
+            return Accel::Tiny { single: TinyAccel::new(tris.clone()), packet: PacketAccel::new(tris) };
         }
+        let big = SplitAccel::choose(&tris);
+        if big.is_empty() { Accel::Bvh(Bvh::new(tris)) } else { Accel::Split(SplitAccel::new(&tris, &big)) }
     }
 
     /// The BVH whatever the size (for tests and comparisons).
@@ -67,6 +75,7 @@ impl Accel {
         match self {
             Accel::Tiny { single, .. } => single.len(),
             Accel::Bvh(b) => b.len(),
+            Accel::Split(s) => s.len(),
         }
     }
 
@@ -81,6 +90,7 @@ impl Accel {
         match self {
             Accel::Tiny { single, .. } => single.intersect(ray),
             Accel::Bvh(b) => b.intersect(ray),
+            Accel::Split(s) => s.intersect(ray),
         }
     }
 
@@ -90,6 +100,7 @@ impl Accel {
         match self {
             Accel::Tiny { single, .. } => single.occluded(ray),
             Accel::Bvh(b) => b.occluded(ray),
+            Accel::Split(s) => s.occluded(ray),
         }
     }
 
@@ -100,6 +111,7 @@ impl Accel {
         match self {
             Accel::Tiny { packet, .. } => packet.intersect_lanes(rays),
             Accel::Bvh(b) => b.intersect8(rays),
+            Accel::Split(s) => s.intersect8(rays),
         }
     }
 
@@ -111,6 +123,7 @@ impl Accel {
         match self {
             Accel::Tiny { packet, .. } => packet.occluded_lanes(rays),
             Accel::Bvh(b) => b.occluded8(rays),
+            Accel::Split(s) => s.occluded8(rays),
         }
     }
 }

@@ -224,6 +224,19 @@ impl Scene {
         &self.accel
     }
 
+    /// The same scene behind a plain [`Accel::Bvh`] whatever [`Accel::new`] chose (tests that
+    /// must cover each structure).
+    #[cfg(test)]
+    pub(crate) fn with_plain_bvh(mut self) -> Scene {
+        let tris = self
+            .shapes
+            .iter()
+            .flat_map(|sh| (0..sh.mesh.triangle_count()).map(|i| sh.mesh.triangle(i)))
+            .collect();
+        self.accel = Accel::bvh(tris);
+        self
+    }
+
     /// Whether anything blocks the ray before `ray.tmax`.
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {

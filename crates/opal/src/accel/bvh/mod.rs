@@ -88,7 +88,15 @@ impl Node8 {
 /// Collapses the binary tree under `node` into 8-wide nodes (each node opens its largest-area
 /// interior child until it has 8 children); leaves become groups of `tris` (in `refs` order).
 /// Returns the index of the node.
-fn collapse(node: &BuildNode, refs: &[build::PrimRef], tris: &[[Vec3; 3]], out: &mut Bvh) -> u32 {
+///
+/// A leaf's triangle indices are `ids[i]` for input triangle `i` (`i` itself without `ids`).
+fn collapse(
+    node: &BuildNode,
+    refs: &[build::PrimRef],
+    tris: &[[Vec3; 3]],
+    ids: Option<&[u32]>,
+    out: &mut Bvh,
+) -> u32 {
     let idx = out.nodes.len();
     out.nodes.push(Node8::EMPTY);
     let mut kids: Vec<&BuildNode> = match node {
@@ -123,12 +131,12 @@ fn collapse(node: &BuildNode, refs: &[build::PrimRef], tris: &[[Vec3; 3]], out: 
                     refs[start..start + count].iter().map(|r| tris[r.idx as usize]).collect();
                 let mut prim = [u32::MAX; LANES];
                 for (p, r) in prim.iter_mut().zip(&refs[start..start + count]) {
-                    *p = r.idx;
+                    *p = ids.map_or(r.idx, |ids| ids[r.idx as usize]);
                 }
                 out.leaves.push(Leaf { tris: Group::new(&leaf), prim });
                 LEAF | g
             }
-            BuildNode::Interior { .. } => collapse(k, refs, tris, out),
+            BuildNode::Interior { .. } => collapse(k, refs, tris, ids, out),
         };
     }
     out.nodes[idx] = n;
@@ -275,6 +283,20 @@ impl Bvh {
     /// # Panics
     /// If there are `2³¹` triangles or more.
     pub fn with_params(tris: &[[Vec3; 3]], sah: SahParams) -> Bvh {
+        Bvh::build(tris, None, sah)
+    }
+
+    /// Builds the hierarchy over `tris` whose hits report triangle `i` as `ids[i]` (a part of a
+    /// larger soup, e.g. [`crate::accel::SplitAccel`]'s small triangles).
+    ///
+    /// # Panics
+    /// If `ids` and `tris` differ in length, or there are `2³¹` triangles or more.
+    pub fn with_ids(tris: &[[Vec3; 3]], ids: &[u32]) -> Bvh {
+        assert_eq!(tris.len(), ids.len(), "one id per triangle");
+        Bvh::build(tris, Some(ids), SahParams::default())
+    }
+
+    fn build(tris: &[[Vec3; 3]], ids: Option<&[u32]>, sah: SahParams) -> Bvh {
         assert!(tris.len() < LEAF as usize, "too many triangles for a Bvh");
         let (root, refs) = build::build(tris, sah);
         let mut bvh = Bvh {
@@ -287,7 +309,7 @@ impl Bvh {
         match root {
             None => bvh.nodes.push(Node8::EMPTY),
             Some(root) => {
-                collapse(&root, &refs, tris, &mut bvh);
+                collapse(&root, &refs, tris, ids, &mut bvh);
                 let b = root.bounds();
                 bvh.bounds = (b.min, b.max);
             }
@@ -314,6 +336,29 @@ impl Bvh {
     /// Bounds `(min, max)` of all triangles (`min > max` when empty).
     pub fn bounds(&self) -> (Vec3, Vec3) {
         self.bounds
+    }
+
+    /// The active lanes (`tmax > 0`) of `rays` whose segment `(0, tmax)` meets the hierarchy's
+    /// bounds (bit `l` = lane `l`), by the slab test of the nodes (`BoxRay::hit8`'s arithmetic):
+    /// a lane left out would find no hit in the traversal either, since every child box lies
+    /// inside the bounds and the test is monotone in the box planes.
+    pub fn enters8(&self, rays: &RayPacket) -> u32 {
+        let (lo, hi) = self.bounds;
+        let mut mask = 0u32;
+        for l in 0..PACKET {
+            let mut t0 = 0.0f32;
+            let mut t1 = rays.tmax[l];
+            for a in 0..3 {
+                let inv = 1.0 / rays.d[a][l];
+                let (near, far) = if inv < 0.0 { (hi[a], lo[a]) } else { (lo[a], hi[a]) };
+                let tn = (near - rays.o[a][l]) * inv;
+                let tf = (far - rays.o[a][l]) * inv * BOX_FAR_SCALE;
+                t0 = if tn > t0 { tn } else { t0 };
+                t1 = if tf < t1 { tf } else { t1 };
+            }
+            mask |= (((rays.tmax[l] > 0.0) & (t0 <= t1)) as u32) << l;
+        }
+        mask
     }
 
     /// Number of 8-wide nodes.

@@ -314,7 +314,7 @@ impl RowPlan {
         let wide = wavefront::wide_shading(scene, wide::Kernel::detect());
         match (scene.accel(), wide) {
             (_, Some(sh)) => RowPlan::Wavefront(sh),
-            (Accel::Tiny { .. }, None) => RowPlan::Wavefront(Shading::Scalar),
+            (Accel::Tiny { .. } | Accel::Split(_), None) => RowPlan::Wavefront(Shading::Scalar),
             (Accel::Bvh(_), None) => RowPlan::Scalar,
         }
     }
