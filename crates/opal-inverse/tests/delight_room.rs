@@ -19,15 +19,20 @@
 //! `fixed` shows what the gained views give without the estimation; bounds are then not
 //! asserted); `OPAL_DELIGHT_PATHS` the light paths per pass (default 20 M).
 //!
-//! Measured 2026-11-26 (20 M paths/pass, 5 passes; 17–27 min per test on 2 shared cores): the
+//! Textures are judged as issue 17 defines it: PSNR pixel-averaged at the input cameras (each
+//! pixel's 4 × 4 stratified rays, recovered vs truth albedo at the hit UVs); the texel-space
+//! PSNR over the seen texels is printed beside it.
+//!
+//! Measured 2026-11-26 (20 M paths/pass, 5 passes; 17–35 min per test on 2 shared cores): the
 //! gains within 0.053 % (`exposure+wb`) and 0.041 % (3 views off), worst constant albedo 0.94 /
-//! 0.97 % (exact views 0.95 %), poster 39.75 dB in all three; **all three fail on the floor
-//! texture, 35.5 dB < 38 dB, the exact views included** (grazing views of 12.5 × 8.6 mm texels
-//! with grout lines; a one-texel blur of the truth alone gives 36.6 dB) — a resolution limit of
-//! the de-lighting on this data, not of the view gains.
+//! 0.97 % (exact views 0.95 %), poster 44.15 dB at the cameras (39.75 dB texel space) — but
+//! **the floor texture fails: 36.33 dB at the cameras (35.49 dB texel space), the exact views
+//! included** (texel space 35.48 dB). The gains change nothing against exact views; the floor is
+//! a limit of the de-lighting on this data (issue 17), not of the view gains.
 
 use opal::image::Image;
 use opal::math::Vec2;
+use opal::scene::Scene;
 use opal::scene::desc::{BitmapDesc, BsdfDesc, FilterType, SceneDesc, TextureDesc, WrapMode};
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{DelightResult, DelightSettings, ViewGainMode, ViewGainSettings, delight};
@@ -103,9 +108,68 @@ fn texture_psnr(r: &DelightResult, id: &str, truth: &Image) -> (f64, usize) {
     (10.0 * (1.0 / (se / n as f64)).log10(), n / 3)
 }
 
+/// PSNR (peak 1) of a recovered texture pixel-averaged at the input cameras (issue 17's
+/// texture metric): per view pixel, 4 × 4 stratified rays through the pixel (box filter); the
+/// samples whose first hit is object `id` give the pixel's truth albedo (the truth texture at
+/// the hit's UV) and its recovered albedo (the recovered texture, bilinear, at the same UV),
+/// each averaged over those samples. Pixels where the object is not seen are skipped; every
+/// channel of every remaining pixel of every view counts once. Returns (PSNR, pixels).
+fn texture_psnr_at_cameras(
+    r: &DelightResult,
+    id: &str,
+    scene: &Scene,
+    views: &[View],
+    truth: &BitmapDesc,
+) -> (f64, usize) {
+    const SUB: usize = 4;
+    let o = r.objects.iter().find(|o| o.id == id).unwrap();
+    assert!(o.atlas.kept_uvs, "{id}: UVs not kept");
+    let got = BitmapDesc {
+        image: std::sync::Arc::new(o.kd_image()),
+        filter: FilterType::Bilinear,
+        wrap: WrapMode::Clamp,
+        path: "kd".into(),
+    };
+    let shape = scene.shapes.iter().position(|s| s.id == id).unwrap() as u32;
+    let (mut se, mut n) = (0f64, 0usize);
+    for v in views {
+        let cam = &v.camera;
+        for y in 0..cam.height {
+            for x in 0..cam.width {
+                let (mut sg, mut st, mut k) = ([0f64; 3], [0f64; 3], 0usize);
+                for j in 0..SUB * SUB {
+                    let p = Vec2::new(
+                        x as f32 + ((j % SUB) as f32 + 0.5) / SUB as f32,
+                        y as f32 + ((j / SUB) as f32 + 0.5) / SUB as f32,
+                    );
+                    let Some(si) = scene.intersect(&cam.generate_ray(p)) else { continue };
+                    if si.shape != shape {
+                        continue;
+                    }
+                    let (g, t) = (got.eval(si.uv), truth.eval(si.uv));
+                    for c in 0..3 {
+                        sg[c] += g[c] as f64;
+                        st[c] += t[c] as f64;
+                    }
+                    k += 1;
+                }
+                if k == 0 {
+                    continue;
+                }
+                for c in 0..3 {
+                    se += ((sg[c] - st[c]) / k as f64).powi(2);
+                }
+                n += 1;
+            }
+        }
+    }
+    (10.0 * (1.0 / (se / (3 * n) as f64)).log10(), n)
+}
+
 /// Worst relative channel error of the constant-albedo objects and the lowest texture PSNR
-/// (printed per object).
-fn report(r: &DelightResult, desc: &SceneDesc) -> (f64, f64) {
+/// pixel-averaged at the input cameras (printed per object, with the texel-space PSNR).
+fn report(r: &DelightResult, desc: &SceneDesc, views: &[View]) -> (f64, f64) {
+    let scene = Scene::build(desc).unwrap();
     let (mut worst, mut psnr_min) = (0f64, f64::INFINITY);
     for s in desc.shapes.iter().filter(|s| s.emitter.is_none()) {
         let o = r.objects.iter().find(|o| o.id == s.id).unwrap();
@@ -131,12 +195,14 @@ fn report(r: &DelightResult, desc: &SceneDesc) -> (f64, f64) {
             }
             BsdfDesc::Diffuse { reflectance: TextureDesc::Bitmap(b) } => {
                 let (p, n) = texture_psnr(r, &s.id, &b.image);
+                let (pc, m) = texture_psnr_at_cameras(r, &s.id, &scene, views, b);
                 println!(
-                    "{:12} texture PSNR {p:.2} dB over {n} texels, seen {:.0}%",
+                    "{:12} texture PSNR {pc:.2} dB pixel-averaged at the input cameras ({m} pixels), \
+                     {p:.2} dB in texel space ({n} texels), seen {:.0}%",
                     s.id,
                     100.0 * o.seen_fraction
                 );
-                psnr_min = psnr_min.min(p);
+                psnr_min = psnr_min.min(pc);
             }
             other => panic!("{}: unexpected bsdf {other:?}", s.id),
         }
@@ -175,7 +241,7 @@ fn gained_run(gains: &[[f64; 3]], default: ViewGainMode) {
     let mode = mode_or(default);
     let r = delight(&desc, &views, &settings(mode), &|l| println!("{l}")).unwrap();
     println!("mode {}:", mode.name());
-    let (worst, psnr) = report(&r, &desc);
+    let (worst, psnr) = report(&r, &desc, &views);
     if mode == default {
         let gerr = common::gain_error(&r, gains);
         assert!(r.warnings.iter().all(|w| !w.contains("gain")), "{:?}", r.warnings);
@@ -190,7 +256,7 @@ fn gained_run(gains: &[[f64; 3]], default: ViewGainMode) {
 fn mitsuba_room_acceptance() {
     let (desc, views) = load();
     let r = delight(&desc, &views, &settings(ViewGainMode::Fixed), &|l| println!("{l}")).unwrap();
-    let (worst, psnr) = report(&r, &desc);
+    let (worst, psnr) = report(&r, &desc, &views);
     assert!(r.view_gains.is_none());
     assert!(worst < 0.01, "acceptance: constant albedos within 1 %: worst {worst}");
     assert!(psnr >= 38.0, "acceptance: textures ≥ 38 dB: {psnr}");
