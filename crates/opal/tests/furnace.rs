@@ -199,7 +199,7 @@ fn look_at_sphere(desc: &mut opal::scene::desc::SceneDesc) {
 /// η = 1.5) using the multiple-scattering interface ([`opal::bsdf::RoughDielectricMs`]): a
 /// lossless interface that keeps energy leaves the furnace radiance unchanged, through the path
 /// tracer's BSDF sampling, stochastic eval in next-event estimation and MIS with the approximate
-/// pdf. Measured: 2.00102 ± 0.00212 at 1024 spp (z = +0.5); the single-scattering
+/// pdf. Measured: 2.00091 ± 0.00212 at 1024 spp (z = +0.43); the single-scattering
 /// `RoughDielectric` in its place gives 1.278 ± 0.002 (the energy it loses), so the test has
 /// power. The only bias is the walk's truncation at [`opal::bsdf::rough_dielectric_ms::MAX_BOUNCES`]
 /// (a lost walk is energy lost): it can only lower the radiance, by at most ε·N·L where ε is the
