@@ -1,6 +1,7 @@
-//! `opal delight` end to end through the binary: a tiny happy path (outputs exist, the written
-//! scene.xml loads and renders in Opal) and bad input (exit 2, message naming the problem, no
-//! output written).
+//! `opal delight` end to end through the binary: a tiny happy path (outputs exist, `--json`
+//! key sets as documented, the albedos equal to the library's on the same views and settings,
+//! the written scene.xml loads in Opal with the recovered texels), view gains in report.json,
+//! and bad input (exit 2, message naming the problem, no output written).
 
 mod common;
 

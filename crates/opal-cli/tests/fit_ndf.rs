@@ -1,5 +1,8 @@
 //! `opal fit-ndf` end to end: bad input → exit 2 with a message naming the problem; a small
-//! real fit writes every output.
+//! real fit writes every output (fit.json's key set as documented; `face.obsdf` rendered from
+//! XML against the analytic `roughdielectric` it tabulates, z-test); `--floor` selects the
+//! points counted from the file; Student-t with the shift on GGX data (nested objective,
+//! selection rule); relative measurements with calibration factors; a non-converged fit exits 1.
 
 mod common;
 

@@ -1,5 +1,7 @@
 //! `opal gonio simulate` end to end: defaults without a file, flags, PLATE.toml, JSON totals,
-//! CSV columns, plot, bad input → exit 2 with the field and value in the message.
+//! CSV columns, plot, bad input → exit 2 with the field and value in the message; the
+//! hemisphere layout's values (z-tests against the plane layout at φ = 0°/180°, mirror symmetry
+//! off the plane, rotational symmetry at normal incidence; R and T sides).
 
 use std::process::Command;
 

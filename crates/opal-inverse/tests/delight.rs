@@ -3,7 +3,13 @@
 //! * `transforms_match_scene_sensors`: the NeRF-style `transforms.json` of the reference Cornell
 //!   box (OpenGL axes) converts to the Mitsuba `to_world` of the scene's sensors.
 //! * `round_trip_small_cbox`: views of the Cornell box rendered by Opal's own path tracer at the
-//!   true albedos (64×64, 8 views) → de-lighting → albedos and back-wall texture vs the truth.
+//!   true albedos (32×32, 8 views) → de-lighting → albedos (per-object bounds from the 8-seed
+//!   spread of the ignored `round_trip_small_cbox_seed_spread`) and back-wall texture (against
+//!   its resolution limit + texel noise) vs the truth; `round_trip_small_cbox_with_view_gains`
+//!   the same at 64×64 with known view gains.
+//! * `lights_small_constant_albedos_within_1_percent`: independent Mitsuba 3 data committed in
+//!   tests/data/lights_small (two coloured area lights and a point light, 5 small views):
+//!   constant albedos within 1 %.
 //! * `mitsuba_cbox_acceptance` (ignored; `OPAL_CBOX_DIR=<shared>/reference/mitsuba/cbox
 //!   cargo test -p opal-inverse --test delight -- --ignored --nocapture`): the independent
 //!   Mitsuba 3 data set, 8 views 256×256.
