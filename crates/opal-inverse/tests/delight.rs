@@ -9,7 +9,8 @@
 //!   the same at 64×64 with known view gains.
 //! * `lights_small_constant_albedos_within_1_percent`: independent Mitsuba 3 data committed in
 //!   tests/data/lights_small (two coloured area lights and a point light, 5 small views):
-//!   constant albedos within 1 %.
+//!   constant albedos within 1 %; `lights_small_power_sampled_lights_within_1_percent` the
+//!   same with the area lights split into 64 triangles (the power-sampled light choice).
 //! * `mitsuba_cbox_acceptance` (ignored; `OPAL_CBOX_DIR=<shared>/reference/mitsuba/cbox
 //!   cargo test -p opal-inverse --test delight -- --ignored --nocapture`): the independent
 //!   Mitsuba 3 data set, 8 views 256×256.
