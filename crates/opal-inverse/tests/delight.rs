@@ -3,7 +3,14 @@
 //! * `transforms_match_scene_sensors`: the NeRF-style `transforms.json` of the reference Cornell
 //!   box (OpenGL axes) converts to the Mitsuba `to_world` of the scene's sensors.
 //! * `round_trip_small_cbox`: views of the Cornell box rendered by Opal's own path tracer at the
-//!   true albedos (64×64, 8 views) → de-lighting → albedos and back-wall texture vs the truth.
+//!   true albedos (32×32, 8 views) → de-lighting → albedos (per-object bounds from the 8-seed
+//!   spread of the ignored `round_trip_small_cbox_seed_spread`) and back-wall texture (against
+//!   its resolution limit + texel noise) vs the truth; `round_trip_small_cbox_with_view_gains`
+//!   the same at 64×64 with known view gains.
+//! * `lights_small_constant_albedos_within_1_percent`: independent Mitsuba 3 data committed in
+//!   tests/data/lights_small (two coloured area lights and a point light, 5 small views):
+//!   constant albedos within 1 %; `lights_small_power_sampled_lights_within_1_percent` the
+//!   same with the area lights split into 64 triangles (the power-sampled light choice).
 //! * `mitsuba_cbox_acceptance` (ignored; `OPAL_CBOX_DIR=<shared>/reference/mitsuba/cbox
 //!   cargo test -p opal-inverse --test delight -- --ignored --nocapture`): the independent
 //!   Mitsuba 3 data set, 8 views 256×256.
@@ -59,8 +66,40 @@ fn transforms_match_scene_sensors() {
 /// some view; the recovered texture is looked up at the truth's texel centres (same UVs).
 fn backwall_psnr(r: &DelightResult, truth: &Image) -> (f64, usize) {
     let o = r.objects.iter().find(|o| o.id == "back_wall").unwrap();
+    texture_psnr(r, &o.kd_image(), truth)
+}
+
+/// The truth box-filtered to the recovered back-wall map's resolution: the best that map can
+/// hold (its PSNR against the truth is the resolution limit of [`backwall_psnr`]).
+fn truth_at_map_resolution(r: &DelightResult, truth: &Image) -> Image {
+    let o = r.objects.iter().find(|o| o.id == "back_wall").unwrap();
+    let (w, h) = (o.atlas.width, o.atlas.height);
+    let (fx, fy) = (truth.width / w, truth.height / h);
+    assert_eq!((fx * w, fy * h), (truth.width, truth.height));
+    let mut img = o.kd_image();
+    for ty in 0..h {
+        for tx in 0..w {
+            let mut acc = [0f32; 3];
+            for y in ty * fy..(ty + 1) * fy {
+                for x in tx * fx..(tx + 1) * fx {
+                    let t = truth.get(x, y);
+                    for c in 0..3 {
+                        acc[c] += t[c] / (fx * fy) as f32;
+                    }
+                }
+            }
+            img.data[ty * w + tx] = opal::spectrum::Spectrum(acc);
+        }
+    }
+    img
+}
+
+/// PSNR of a back-wall map `kd` (at the recovered map's resolution) against the truth, over the
+/// texels the recovered map saw.
+fn texture_psnr(r: &DelightResult, kd: &Image, truth: &Image) -> (f64, usize) {
+    let o = r.objects.iter().find(|o| o.id == "back_wall").unwrap();
     assert!(o.atlas.kept_uvs);
-    let kd = o.kd_image();
+    let kd = kd.clone();
     let (w, h) = (o.atlas.width, o.atlas.height);
     let mut se = 0f64;
     let mut n = 0usize;
@@ -152,12 +191,17 @@ fn report(r: &DelightResult, desc: &SceneDesc) -> f64 {
 /// The Cornell box rendered by Opal's path tracer at its true albedos: 8 views of `res`×`res`
 /// pixels at 256 spp.
 fn small_views(desc: &mut SceneDesc, res: usize) -> Vec<View> {
+    views_with_seed(desc, res, 7)
+}
+
+/// [`small_views`] with the path tracer's seed.
+fn views_with_seed(desc: &mut SceneDesc, res: usize, seed: u64) -> Vec<View> {
     for s in &mut desc.sensors {
         s.width = res;
         s.height = res;
     }
     let scene = Scene::build(desc).unwrap();
-    let ps = PathSettings { spp: 256, max_depth: -1, rr_depth: 5, hide_emitters: false, seed: 7 };
+    let ps = PathSettings { spp: 256, max_depth: -1, rr_depth: 5, hide_emitters: false, seed };
     (0..scene.cameras.len())
         .map(|c| {
             let out = render(&scene, c, &ps, &|| {});
@@ -193,17 +237,161 @@ fn round_trip_small_cbox() {
     let worst = report(&r, &desc);
     let truth = opal::image::read::read_image(&data().join("textures/backwall_albedo.exr")).unwrap();
     let (psnr, n) = backwall_psnr(&r, &truth);
-    println!("back wall PSNR {psnr:.2} dB over {n} texels");
-    // Tolerances for this deliberately tiny configuration (32×32 views at 256 spp, 32² texture
-    // maps, 500 k light paths per pass, 4 passes): the measured worst channel error is ~4 %
-    // (dark channels of the red wall, whose 4 % share of the luminance makes them noisy; the
-    // bright channels are within ~3 %), so 6 % catches a wrong estimator (the bugs found while
-    // writing this — lost border deposits, unrelaxed oscillation — gave 15–22 %) without
-    // flaking. 32-pixel views cannot resolve the 256² back-wall texture: the PSNR bound only
-    // checks orientation (a flipped texture gives < 12 dB).
+    let (limit, _) = texture_psnr(&r, &truth_at_map_resolution(&r, &truth), &truth);
+    // texel noise: relative spread of the observed texels of the constant planar objects
+    let (mut s2, mut m) = (0f64, 0usize);
+    for (id, t) in truth_albedos(&desc).iter().filter(|(id, _)| !id.ends_with("_box")) {
+        let o = r.objects.iter().find(|o| &o.id == id).unwrap();
+        for (kd, _) in o.kd.iter().zip(&o.observed).filter(|(_, seen)| **seen) {
+            for c in 0..3 {
+                s2 += (kd[c] as f64 / t[c] as f64 - 1.0).powi(2);
+                m += 1;
+            }
+        }
+    }
+    let rel_sd = (s2 / m as f64).sqrt();
+    let mean_sq = truth.data.iter().map(|p| (0..3).map(|c| (p[c] as f64).powi(2)).sum::<f64>()).sum::<f64>()
+        / (3 * truth.data.len()) as f64;
+    let mse_limit = 10f64.powf(-limit / 10.0);
+    let noise_mse = rel_sd * rel_sd * mean_sq;
+    let psnr_expected = 10.0 * (1.0 / (mse_limit + noise_mse)).log10();
+    let psnr_bound = 10.0 * (1.0 / (mse_limit + 2.0 * noise_mse)).log10();
+    println!(
+        "back wall PSNR {psnr:.2} dB over {n} texels (the truth at the map's resolution: {limit:.2} dB; \
+         texel noise {:.2} % → expected {psnr_expected:.2} dB, bound {psnr_bound:.2} dB)",
+        100.0 * rel_sd
+    );
+    // Bounds of this deliberately tiny configuration (32×32 views at 256 spp, 32² texture maps,
+    // 500 k light paths per pass, 4 passes), per object from the spread over 8 seeds of views
+    // and de-lighting (`round_trip_small_cbox_seed_spread`): bound = |mean error| + 4σ of the
+    // worst channel. The configuration has a bias of its own (mean over the seeds: floor
+    // −1.7 %, tall box +3.5 %, each ≥ 10 σ/√8 away from 0 — 32-pixel views mix the colours of
+    // neighbouring objects at their edges; 256-pixel views reach 1 %, `mitsuba_cbox_acceptance`).
+    // * the large planar objects: floor 1.69 + 4·0.37, red wall 0.97 + 4·0.45, ceiling
+    //   0.18 + 4·0.48, green wall 0.26 + 4·0.26 (%) → 3.2 % at most: bound 3.5 %.
+    // * the boxes: short box σ up to 3.6 %, tall box 3.46 + 4·1.01 % — 4σ exceeds the earlier
+    //   6 %, which is kept (never widened): ≈ 1.7σ of the short box, so the test relies on its
+    //   fixed seeds there (the seed sweep has a run at −7.5 %).
+    // A wrong estimator (the bugs found while writing this — lost border deposits, unrelaxed
+    // oscillation — gave 15–22 %) fails either bound. Measured with the fixed seeds: worst
+    // planar channel 1.3 % (red wall, blue), short box 2.6 %, tall box 1.5 %.
+    for (id, t) in truth_albedos(&desc) {
+        let m = r.objects.iter().find(|o| o.id == id).unwrap().mean_kd_observed();
+        let bound = if id.ends_with("_box") { 0.06 } else { 0.035 };
+        for c in 0..3 {
+            let e = (m[c] / t[c] as f64 - 1.0).abs();
+            assert!(e < bound, "{id} channel {c}: relative albedo error {e} (bound {bound})");
+        }
+    }
     assert!(worst < 0.06, "worst relative albedo error {worst}");
+    // Back wall: 32-pixel views and a 32² map cannot resolve the 256² texture. Its expected
+    // squared error is the resolution limit's (the truth box-filtered to the map: 19.50 dB) +
+    // the texel noise (relative spread of the constant planar objects' texels, 8.35 %, times
+    // the texture's mean square): expected 18.87 dB, measured 18.92 dB. Bound: the noise term
+    // doubled (its estimate comes from other objects), 18.3 dB (was a flat 15 dB); a flipped
+    // texture gives < 12 dB.
+    assert!(psnr > psnr_bound, "back wall PSNR {psnr} dB < {psnr_bound} dB (expected {psnr_expected})");
     assert!(psnr > 15.0, "{psnr}");
     assert!(r.view_gains.is_none());
+}
+
+fn lights_small() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/lights_small")
+}
+
+/// Independent data with several kinds of light: a closed room rendered by Mitsuba 3
+/// (`bench/scripts/delight_lights_small.py`, committed in tests/data/lights_small, 0.7 MB): two
+/// area lights of different colours (4 emitting triangles) and a point light of a third colour,
+/// 8 objects of constant albedo (walls, floor, ceiling, a box, a faceted sphere), 5 views of
+/// 80×60 / 64×64 pixels at 4096 spp (median per-pixel relative standard error 1.9 %). The
+/// direct irradiance runs its per-light branch with a point light among the triangle lights.
+/// Acceptance bar: every constant albedo within 1 % per channel.
+#[test]
+fn lights_small_constant_albedos_within_1_percent() {
+    let dir = lights_small();
+    let desc = load(&dir.join("scene.xml"));
+    assert_eq!(desc.shapes.iter().filter(|s| s.emitter.is_some()).count(), 2);
+    let (views, warn) = read_views(&dir.join("transforms.json")).unwrap();
+    assert!(warn.is_empty(), "{warn:?}");
+    // 128² maps: at 32² the sphere (552 triangles in 34 charts) reads +20 to +35 % (converged:
+    // the same after 10 passes), at 64² +0.9 to +1.1 % (4 M paths, 10 passes), at 128² and at
+    // `auto` (256² for the sphere) within 0.5 % — the error of small charts in a coarse atlas,
+    // not noise (1.9 % per pixel over hundreds of pixels per object: ≲ 0.1 % on an object's
+    // mean). 8 passes: the fixed
+    // point settles after 6–7 (re-rendering error 38 % after 5 passes, 1.5 % after 8).
+    let s = DelightSettings {
+        resolution: Some(128),
+        light_paths: 2_000_000,
+        iterations: 8,
+        tolerance: 0.0,
+        ..Default::default()
+    };
+    let t0 = std::time::Instant::now();
+    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
+    let worst = report(&r, &desc);
+    println!("worst constant-albedo error {:.2} % ({:.1} s)", 100.0 * worst, t0.elapsed().as_secs_f64());
+    assert_eq!(truth_albedos(&desc).len(), 8);
+    assert!(worst < 0.01, "acceptance: constant albedos within 1 %: worst {worst}");
+}
+
+/// Splits every triangle of `m` into four at its edge midpoints (normals and UVs interpolated).
+fn subdivide(m: &mut opal::geometry::TriangleMesh) {
+    let mut idx = Vec::with_capacity(4 * m.indices.len());
+    for [a, b, c] in std::mem::take(&mut m.indices) {
+        let mut mid = |i: u32, j: u32| {
+            let (i, j) = (i as usize, j as usize);
+            m.positions.push((m.positions[i] + m.positions[j]) * 0.5);
+            if !m.normals.is_empty() {
+                m.normals.push((m.normals[i] + m.normals[j]).normalize());
+            }
+            if !m.uvs.is_empty() {
+                m.uvs.push((m.uvs[i] + m.uvs[j]) * 0.5);
+            }
+            (m.positions.len() - 1) as u32
+        };
+        let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
+        idx.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+    }
+    m.indices = idx;
+}
+
+/// [`lights_small_constant_albedos_within_1_percent`] with each area light split into 32
+/// triangles (two subdivisions): 64 emitting triangles and the point light are more than
+/// `MAX_LIGHTS_PER_TEXEL`, so the direct irradiance chooses lights by power instead of sampling
+/// each one (the radiance field, hence the views, is unchanged). Same bar: 1 %. 256 direct
+/// samples per texel: with the default 64 the power-sampled estimate's noise biases the ratio
+/// L / E upwards where a light is sampled rarely (blue, the small cool panel: floor +0.92 %,
+/// front wall +0.82 %, right wall +0.56 %; with 256: +0.41 / +0.34 / +0.06 %; the per-light
+/// branch at 64 samples: ≤ +0.3 %). Measured worst 0.51 % (the box's blue).
+#[test]
+fn lights_small_power_sampled_lights_within_1_percent() {
+    let dir = lights_small();
+    let mut desc = load(&dir.join("scene.xml"));
+    for s in desc.shapes.iter_mut().filter(|s| s.emitter.is_some()) {
+        subdivide(&mut s.mesh);
+        subdivide(&mut s.mesh);
+    }
+    let n_lights = Scene::build(&desc).unwrap().lights.len();
+    // more than the direct estimator's MAX_LIGHTS_PER_TEXEL (16, a private constant)
+    assert!(n_lights > 16, "{n_lights} lights");
+    let (views, _) = read_views(&dir.join("transforms.json")).unwrap();
+    let s = DelightSettings {
+        resolution: Some(128),
+        light_paths: 2_000_000,
+        iterations: 8,
+        direct_samples: 256,
+        tolerance: 0.0,
+        ..Default::default()
+    };
+    let t0 = std::time::Instant::now();
+    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
+    let worst = report(&r, &desc);
+    println!(
+        "{n_lights} lights: worst constant-albedo error {:.2} % ({:.1} s)",
+        100.0 * worst,
+        t0.elapsed().as_secs_f64()
+    );
+    assert!(worst < 0.01, "constant albedos within 1 %: worst {worst}");
 }
 
 /// Known per-view gains of the tests: exposure 0.8–1.25 times white balance ±5 % per channel,
@@ -325,5 +513,41 @@ fn mitsuba_cbox_view_gains_acceptance() {
         assert!(gerr < 0.005, "acceptance: gains within 0.5 %: worst {gerr}");
         assert!(worst < 0.01, "acceptance: mean albedo within 1 %: worst {worst}");
         assert!(psnr >= 38.0, "acceptance: back wall PSNR ≥ 38 dB: {psnr}");
+    }
+}
+
+/// The seed-to-seed spread behind the bounds of [`round_trip_small_cbox`]: its configuration
+/// run with 8 seeds (views and de-lighting), printing per object and channel the mean relative
+/// error (the bias of the configuration) and its standard deviation over the seeds (σ).
+/// Measured (8 seeds, 2026-11): floor −0.8/−1.7/−1.5 % ± 0.3–0.45 %, ceiling ≤ 0.2 % ± 0.5 %,
+/// red wall −0.3/+0.7/+1.0 % ± 0.45 %, green wall ≤ 0.3 % ± 0.26 %, short box ≤ 1.4 % ± 2.3–3.6 %,
+/// tall box +1.9/+1.9/+3.5 % ± 0.6–1.4 %.
+#[test]
+#[ignore = "measurement behind a bound (8 de-lighting runs, ~2 min)"]
+fn round_trip_small_cbox_seed_spread() {
+    let base = load(&data().join("scene.xml"));
+    let truth = truth_albedos(&base);
+    let mut all: Vec<Vec<f64>> = Vec::new();
+    for k in 0..8u64 {
+        let mut desc = base.clone();
+        let views = views_with_seed(&mut desc, 32, 100 + k);
+        let s = DelightSettings { seed: 1000 + k, ..small_settings() };
+        let r = delight(&desc, &views, &s, &|_| {}).unwrap();
+        let mut row = Vec::new();
+        for (id, t) in &truth {
+            let m = r.objects.iter().find(|o| &o.id == id).unwrap().mean_kd_observed();
+            row.extend((0..3).map(|c| m[c] / t[c] as f64 - 1.0));
+        }
+        println!(
+            "seed {k}: {}",
+            row.iter().map(|v| format!("{:+.2}", 100.0 * v)).collect::<Vec<_>>().join(" ")
+        );
+        all.push(row);
+    }
+    let n = all.len() as f64;
+    for (j, (id, c)) in truth.iter().flat_map(|t| (0..3).map(move |c| (t.0.clone(), c))).enumerate() {
+        let m = all.iter().map(|r| r[j]).sum::<f64>() / n;
+        let sd = (all.iter().map(|r| (r[j] - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+        println!("{id:18} channel {c}: mean {:+.2} % σ {:.2} %", 100.0 * m, 100.0 * sd);
     }
 }

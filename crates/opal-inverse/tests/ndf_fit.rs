@@ -643,3 +643,18 @@ fn scaled_round_trips() {
     );
     assert!(b.check.rms > 1.5 * b.check.noise, "absolute fit of scaled data within noise?");
 }
+
+/// `Problem::new` refuses a floor outside [0, 1) naming `floor_rel` (the CLI checks `--floor`
+/// before; the points a floor keeps are counted in crates/opal-cli/tests/fit_ndf.rs). Its "no
+/// point above the floor" error cannot be reached: every curve of a `Measured` has a positive
+/// value, and a curve's maximum passes any floor < 1.
+#[test]
+fn floor_outside_unit_interval_is_refused() {
+    let m = reference("ggx_a0.15_smooth");
+    for bad in [1.0, 1.5, -0.1, f64::NAN] {
+        let s = FitSetup { floor_rel: bad, ..setup(false, 1000) };
+        let e = Problem::new(m.clone(), s).err().expect("refused").to_string();
+        assert!(e.contains("floor_rel") && e.contains("[0, 1)"), "{bad}: {e}");
+    }
+    assert!(Problem::new(m, FitSetup { floor_rel: 0.0, ..setup(false, 1000) }).is_ok());
+}

@@ -199,10 +199,17 @@ fn look_at_sphere(desc: &mut opal::scene::desc::SceneDesc) {
 /// η = 1.5) using the multiple-scattering interface ([`opal::bsdf::RoughDielectricMs`]): a
 /// lossless interface that keeps energy leaves the furnace radiance unchanged, through the path
 /// tracer's BSDF sampling, stochastic eval in next-event estimation and MIS with the approximate
-/// pdf. Measured: 2.00102 ± 0.00212 at 1024 spp; the single-scattering `RoughDielectric` in its
-/// place gives 1.278 ± 0.002 (the energy it loses), so the test has power. The walk
-/// is truncated at its maximum order, which the module bounds by R + T ≥ 0.995; the tolerance
-/// adds that 0.5 % per sphere interaction as a bias allowance to 4σ.
+/// pdf. Measured: 2.00091 ± 0.00212 at 1024 spp (z = +0.43); the single-scattering
+/// `RoughDielectric` in its place gives 1.278 ± 0.002 (the energy it loses), so the test has
+/// power. The only bias is the walk's truncation at [`opal::bsdf::rough_dielectric_ms::MAX_BOUNCES`]
+/// (a lost walk is energy lost): it can only lower the radiance, by at most ε·N·L where ε is the
+/// lost fraction per interaction and N the expected number of sphere interactions per camera
+/// path. ε is measured here (0 lost walks of 360 000 at this α and η: ε < 8.3·10⁻⁶, the 95 %
+/// Poisson bound); N is not measured, N = 20 is taken as a generous bound (2 wall bounces on
+/// average at ρ = 0.5, so ~3 straight segments, each meeting the sphere at most once and then
+/// reflecting inside it a few times): the allowance 20·ε·L ≤ 3.3·10⁻⁴ is 0.16σ, and applies
+/// only below the expected value (even N = 200 would stay under 2σ). (It replaces a flat 0.5 % from the
+/// module's loose R + T ≥ 0.995 check, 5σ of this test.)
 #[test]
 fn furnace_with_rough_glass_sphere_multiple_scattering() {
     let sphere = glass_test_sphere();
@@ -211,7 +218,7 @@ fn furnace_with_rough_glass_sphere_multiple_scattering() {
     desc.shapes.push(ShapeDesc {
         id: "rough_glass".into(),
         mesh: sphere,
-        bsdf: BsdfDesc::Lobe(opal::bsdf::Bxdfs::RoughDielectricMs(ms)),
+        bsdf: BsdfDesc::Lobe(opal::bsdf::Bxdfs::RoughDielectricMs(ms.clone())),
         emitter: None,
         origin: None,
     });
@@ -221,7 +228,28 @@ fn furnace_with_rough_glass_sphere_multiple_scattering() {
     let out = render(&scene, 0, &s, &|| {});
     assert_eq!(out.nonfinite, 0);
     let expected = 1.0 / (1.0 - 0.5);
+    // lost fraction of the walk at this α and η, 9 incidences × both sides
+    let (mut lost, mut walks) = (0u64, 0u64);
+    for k in 0..9 {
+        for side in [1.0f32, -1.0] {
+            let t = (k as f32 + 0.5) * 10f32.to_radians();
+            let wo = Vec3::new(t.sin(), 0.0, side * t.cos());
+            let mut rng = opal::sampling::Rng::new(5, k, side.to_bits() as u64);
+            for _ in 0..20_000 {
+                walks += 1;
+                lost += u64::from(ms.sample_dir(wo, &mut rng).is_none());
+            }
+        }
+    }
+    // 95 % upper bound of a Poisson rate from `lost` events (3.0 for none, else ≈ lost + 2√lost + 2)
+    let eps = (lost as f64 + 2.0 * (lost as f64).sqrt() + 3.0) / walks as f64;
+    let allowance = eps * 20.0 * expected;
     let (m, se) = mean_and_se(&out, 0);
-    println!("rough glass furnace: mean {m:.5} ± {se:.5} (expected {expected})");
-    assert!((m - expected).abs() <= 4.0 * se + 0.005 * expected, "{m} ± {se}, expected {expected}");
+    println!(
+        "rough glass furnace: mean {m:.5} ± {se:.5} (expected {expected}, z {:+.2}); lost walks {lost}/{walks}, \
+         truncation allowance {allowance:.2e}",
+        (m - expected) / se
+    );
+    assert!(m - expected <= 4.0 * se, "{m} ± {se}, expected {expected}");
+    assert!(expected - m <= 4.0 * se + allowance, "{m} ± {se}, expected {expected} (allowance {allowance})");
 }

@@ -118,9 +118,8 @@ fn chi2_sample_vs_pdf_and_weights() {
 
 /// Generalised reciprocity f(wo, wi)/n_o² = f(wi, wo)/n_i² holds for the source exactly and
 /// for the table up to its discretisation: the L1 difference of the two sides, weighted by
-/// the scattered power (wi drawn from the table), is bounded by the sum of the two eval
-/// errors (≤ 3 % each, see `eval_and_albedo_match_source_both_sides`, up to 10 % for both
-/// directions and the grazing pairs).
+/// the scattered power (wi drawn from the table), is at most the sum of the two eval errors
+/// over the same pairs (printed per elevation bin as fwd and back).
 #[test]
 fn reciprocity_up_to_discretisation() {
     let src = RoughDielectric::new(Ndfs::ggx(0.2), 1.5, Shadowing::Separable).unwrap();
@@ -129,7 +128,9 @@ fn reciprocity_up_to_discretisation() {
     let mut rng = crate::sampling::Rng::new(17, 0, 0);
     let (mut diff, mut tot) = (0.0f64, 0.0f64);
     let mut bins = [[0.0f64; 4]; 3];
-    for _ in 0..200_000 {
+    // per batch of 10 000 pairs: (diff, tot), for the Monte-Carlo error of the ratio
+    let mut batches = vec![(0.0f64, 0.0f64); 20];
+    for k in 0..200_000 {
         let wo = crate::sampling::square_to_uniform_sphere(rng.next_2d());
         let Some(s) = tab.sample(wo, rng.next_f32(), rng.next_2d(), TransportMode::Radiance) else {
             continue;
@@ -141,6 +142,8 @@ fn reciprocity_up_to_discretisation() {
         let w = (wo.z.abs() * s.wi.z.abs() / s.pdf) as f64;
         diff += (a - b).abs() as f64 * w;
         tot += a as f64 * w;
+        batches[k / 10_000].0 += (a - b).abs() as f64 * w;
+        batches[k / 10_000].1 += a as f64 * w;
         let c = src.eval(wo, s.wi, TransportMode::Radiance)[0] / (n(wo) * n(wo));
         let d = src.eval(s.wi, wo, TransportMode::Radiance)[0] / (n(s.wi) * n(s.wi));
         let zmin = wo.z.abs().min(s.wi.z.abs());
@@ -166,8 +169,18 @@ fn reciprocity_up_to_discretisation() {
         );
     }
     let rel = diff / tot;
-    eprintln!("reciprocity L1 {rel:.4}");
-    assert!(rel < 0.1, "reciprocity L1 {rel}");
+    // standard error of the ratio from the spread of the 20 batch ratios
+    let nb = batches.len() as f64;
+    let sd = (batches.iter().map(|b| (b.0 / b.1 - rel).powi(2)).sum::<f64>() / (nb - 1.0)).sqrt() / nb.sqrt();
+    eprintln!("reciprocity L1 {rel:.4} ± {sd:.4}");
+    // The table is deterministic: the L1 is its discretisation error for the default grid
+    // (measured 0.49 %) plus Monte-Carlo noise (σ = 0.01 %, computed above from 20 batches of
+    // the fixed seed's pairs). Bound: the measured value + 4σ (0.53 %), rounded up to 0.6 % for
+    // float differences between platforms; a change of the default grid moves it (update the
+    // number then). Pairs near grazing carry most of it (6 % L1 below 10° elevation, 0.07 %
+    // above 30°). A table that mixed up η'² or a Jacobian in one direction gives tens of percent.
+    assert!(sd < 0.0005, "Monte-Carlo error of the reciprocity L1 {sd}");
+    assert!(rel < 0.006, "reciprocity L1 {rel} ± {sd}");
 }
 
 /// The histogram builder: from the single-scattering sampler it reproduces the table
