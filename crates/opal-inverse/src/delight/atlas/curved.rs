@@ -42,6 +42,8 @@ pub struct UnwrapStats {
     pub cg_iterations: usize,
     /// Density (texels per world unit).
     pub density: f64,
+    /// Wall seconds of segmentation, flattening and packing.
+    pub seconds: [f64; 3],
 }
 
 /// A chart being flattened: its triangles (mesh indices).
@@ -175,11 +177,13 @@ pub fn unwrap(
     mesh: &TriangleMesh,
     res: usize,
 ) -> Result<(TriangleMesh, Vec<u32>, usize, UnwrapStats), String> {
+    let clock = std::time::Instant::now();
     let topo = Topology::new(mesh);
     let p64 = segment::positions64(mesh);
     let n_s = segment::smoothed_normals(&topo, SMOOTH_PASSES);
     let (label, nc) = segment::segment(&topo, &n_s, CONE_DEG);
     let mut stats = UnwrapStats { segments: nc, ..Default::default() };
+    stats.seconds[0] = clock.elapsed().as_secs_f64();
     let mut pieces: Vec<Piece> = (0..nc).map(|_| Piece { tris: Vec::new() }).collect();
     for (k, &l) in label.iter().enumerate() {
         pieces[l as usize].tris.push(k as u32);
@@ -204,7 +208,9 @@ pub fn unwrap(
         pieces = next;
     }
     let flats: Vec<Flat> = done.iter().map(|d| Flat { tris: d.1.tris.clone(), uv: d.1.uv.clone() }).collect();
+    stats.seconds[1] = clock.elapsed().as_secs_f64() - stats.seconds[0];
     let (packed, density) = pack::pack(&flats, res)?;
+    stats.seconds[2] = clock.elapsed().as_secs_f64() - stats.seconds[0] - stats.seconds[1];
     stats.density = density;
     // output mesh: one vertex per (mesh vertex, chart)
     let mut tri_chart = vec![0u32; mesh.triangle_count()];
