@@ -192,6 +192,11 @@ impl Prepared {
     }
 }
 
+/// Offset (texels) of a piece's UVs in its footprint frame: a vertex at the minimum lands on
+/// 1.5, so its conservative texels start at row/column 1 and their 3×3 growth at 0 (an offset
+/// of 1 puts a vertex exactly on a texel border, whose touching texel 0 would need texel −1).
+const MARGIN: f64 = 1.5;
+
 /// Footprint of a piece at density `s`, rotated by `rot` quarter turns: the mask and the texel
 /// coordinates of its UVs in the mask's frame.
 fn footprint(c: &Prepared, s: f64, rot: u8) -> (Mask, Vec<DVec2>) {
@@ -205,10 +210,10 @@ fn footprint(c: &Prepared, s: f64, rot: u8) -> (Mask, Vec<DVec2>) {
                     2 => c.ext - q,
                     _ => DVec2::new(q.y, c.ext.x - q.x),
                 };
-                q * s + DVec2::ONE
+                q * s + DVec2::splat(MARGIN)
             })
             .collect();
-    let (w, h) = ((ext.x * s).floor() as usize + 3, (ext.y * s).floor() as usize + 3);
+    let (w, h) = ((ext.x * s).floor() as usize + 4, (ext.y * s).floor() as usize + 4);
     let mut m = Mask::new(w, h);
     for tri in &c.tris {
         conservative_raster(tri.map(|i| t[i as usize]), w, h, 1e-3, |x, y| m.set(x, y));
