@@ -9,6 +9,9 @@
 //!   centroid across its longest principal axis (then split into connected pieces) and each piece
 //!   is flattened again; a single triangle is always valid.
 //! * Charts are processed in parallel; the result does not depend on the thread count.
+//! * Atlases finer than [`PACK_RES`]² reuse the layout packed on a [`PACK_RES`]² grid (UVs in
+//!   [0, 1] are resolution-free; the gaps only grow), which keeps packing at a few seconds: at
+//!   2048² direct packing took 18 s on the 82 k-triangle scan for 77.8 % instead of ≈ 76 %.
 //!
 //! Tests: `atlas::tests`.
 
@@ -26,6 +29,8 @@ pub const CONE_DEG: f64 = 60.0;
 pub const MAX_AREA_RATIO: f64 = 4.0;
 /// Face normals within this angle (degrees) of the chart normal: planar chart.
 pub const PLANAR_DEG: f64 = 1.0;
+/// Largest grid the charts are laid out on (finer atlases scale the layout up).
+pub const PACK_RES: usize = 1024;
 /// Jacobi passes of normal smoothing before segmentation.
 const SMOOTH_PASSES: usize = 10;
 
@@ -209,7 +214,11 @@ pub fn unwrap(
     }
     let flats: Vec<Flat> = done.iter().map(|d| Flat { tris: d.1.tris.clone(), uv: d.1.uv.clone() }).collect();
     stats.seconds[1] = clock.elapsed().as_secs_f64() - stats.seconds[0];
-    let (packed, density) = pack::pack(&flats, res)?;
+    // UVs in [0, 1] from a layout on at most PACK_RES² texels: gaps of ≥ 2 layout texels are
+    // ≥ 2 texels at any finer resolution, and the packing time stays bounded
+    let pr = res.min(PACK_RES);
+    let (packed, density) = pack::pack(&flats, pr)?;
+    let density = density * res as f64 / pr as f64;
     stats.seconds[2] = clock.elapsed().as_secs_f64() - stats.seconds[0] - stats.seconds[1];
     stats.density = density;
     // output mesh: one vertex per (mesh vertex, chart)
