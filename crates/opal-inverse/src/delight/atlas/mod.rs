@@ -26,7 +26,9 @@
 //! Tests: `tests.rs` (kept UVs detected, overlapping UVs rejected, unwrap of a cube gives 6
 //! planar charts; the displaced-sphere unwrap has no flipped or overlapping triangles, exact
 //! texel areas, bilinear look-ups inside their own chart, utilisation ≥ 70 %, bounded
-//! distortion, and is deterministic; LSCM flattens a cylinder patch isometrically).
+//! distortion, and is deterministic; the same checks on an open hemisphere + cube + degenerate
+//! triangle in one mesh; LSCM flattens a cylinder patch isometrically; the Cornell box's meshes
+//! take the planar path).
 
 // Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
 #![allow(clippy::needless_range_loop)]

@@ -238,3 +238,14 @@ fn mixed_open_curved_and_planar_mesh_unwraps_validly() {
     println!("{charts} charts, utilisation {util:.3}, {dist:?}");
     assert!(charts >= 7);
 }
+
+#[test]
+fn cornell_box_meshes_take_the_planar_path() {
+    // the shared Cornell box: every object's unwrap is the planar one (atlases as before)
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox/scene.xml");
+    let desc = opal::scene::load::load_mitsuba_xml(&dir, &[]).unwrap();
+    for s in &desc.shapes {
+        let (tri_chart, chart_n) = planar::grow_charts(&s.mesh);
+        assert!(planar::all_planar(&s.mesh, &tri_chart, &chart_n), "{}", s.id);
+    }
+}
