@@ -209,17 +209,28 @@ pub fn median3(values: &mut [[f32; 3]], known: &[bool], chart: &[u32], width: us
     }
 }
 
-/// Copies the nearest filled value into gutter texels (`!filled`), `passes` rings outwards, so
-/// that bilinear lookups at chart borders do not blend in empty texels.
-pub fn dilate(values: &mut [[f32; 3]], filled: &[bool], width: usize, height: usize, passes: usize) {
+/// Fills gutter texels (`!filled`) so that bilinear look-ups at chart borders do not blend in
+/// empty texels or other charts. First every texel with an owner chart (`owner[i] != u32::MAX`,
+/// see `Atlas::texel_owner`) takes the mean of its already-filled 8-neighbours **of the same
+/// owner**, ring by ring until no owned texel is left that such a neighbour reaches; then the
+/// remaining texels take the mean of any filled 8-neighbours, `passes` rings outwards.
+pub fn dilate(
+    values: &mut [[f32; 3]],
+    filled: &[bool],
+    owner: &[u32],
+    width: usize,
+    height: usize,
+    passes: usize,
+) {
     let mut have = filled.to_vec();
-    for _ in 0..passes {
+    let ring = |values: &mut [[f32; 3]], have: &mut Vec<bool>, own: bool| {
         let prev = have.clone();
         let src = values.to_vec();
+        let mut changed = false;
         for y in 0..height {
             for x in 0..width {
                 let i = y * width + x;
-                if prev[i] {
+                if prev[i] || (owner[i] != u32::MAX) != own {
                     continue;
                 }
                 let mut acc = [0f32; 3];
@@ -230,7 +241,7 @@ pub fn dilate(values: &mut [[f32; 3]], filled: &[bool], width: usize, height: us
                         continue;
                     }
                     let j = yy as usize * width + xx as usize;
-                    if prev[j] {
+                    if prev[j] && (!own || owner[j] == owner[i]) {
                         for c in 0..3 {
                             acc[c] += src[j][c];
                         }
@@ -240,9 +251,15 @@ pub fn dilate(values: &mut [[f32; 3]], filled: &[bool], width: usize, height: us
                 if k > 0 {
                     values[i] = acc.map(|a| a / k as f32);
                     have[i] = true;
+                    changed = true;
                 }
             }
         }
+        changed
+    };
+    while ring(values, &mut have, true) {}
+    for _ in 0..passes {
+        ring(values, &mut have, false);
     }
 }
 
@@ -311,7 +328,23 @@ mod tests {
         let mut filled = vec![false; 25];
         filled[12] = true;
         v[12] = [3.0; 3];
-        dilate(&mut v, &filled, w, h, 2);
+        dilate(&mut v, &filled, &[u32::MAX; 25], w, h, 2);
         assert!(v.iter().all(|p| *p == [3.0; 3]));
+    }
+
+    #[test]
+    fn dilate_fills_owned_gutter_from_its_own_chart_only() {
+        // two charts on a 1-row strip: texels 0–1 chart 0 (value 1), 6–7 chart 1 (value 5);
+        // gutter 2–3 owned by chart 0, 4–5 by chart 1
+        let (w, h) = (8, 1);
+        let mut v = vec![[0.0f32; 3]; w];
+        let filled = [true, true, false, false, false, false, true, true];
+        let owner = [0, 0, 0, 0, 1, 1, 1, 1];
+        for i in 0..2 {
+            v[i] = [1.0; 3];
+            v[6 + i] = [5.0; 3];
+        }
+        dilate(&mut v, &filled, &owner, w, h, 4);
+        assert_eq!(v.iter().map(|p| p[0]).collect::<Vec<_>>(), [1.0, 1.0, 1.0, 1.0, 5.0, 5.0, 5.0, 5.0]);
     }
 }

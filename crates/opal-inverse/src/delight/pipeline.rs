@@ -114,7 +114,7 @@ fn update_kd(o: &mut ObjectResult) -> usize {
             }
         }
     }
-    inpaint::dilate(&mut o.kd, &covered, o.atlas.width, o.atlas.height, 4);
+    inpaint::dilate(&mut o.kd, &covered, &o.atlas.texel_owner, o.atlas.width, o.atlas.height, 4);
     clamped
 }
 
