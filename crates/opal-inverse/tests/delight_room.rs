@@ -35,7 +35,9 @@ use opal::math::Vec2;
 use opal::scene::Scene;
 use opal::scene::desc::{BitmapDesc, BsdfDesc, FilterType, SceneDesc, TextureDesc, WrapMode};
 use opal_inverse::delight::views::{View, read_views};
-use opal_inverse::delight::{DelightResult, DelightSettings, ViewGainMode, ViewGainSettings, delight};
+use opal_inverse::delight::{
+    DelightResult, DelightSettings, ObjectResult, ViewGainMode, ViewGainSettings, delight,
+};
 use std::path::PathBuf;
 
 mod common;
@@ -78,9 +80,8 @@ fn mode_or(default: ViewGainMode) -> ViewGainMode {
     }
 }
 
-/// PSNR (peak 1) of a recovered texture against the truth over the texels seen by some view;
-/// the recovered texture is looked up at the truth's texel centres (same UVs).
-fn texture_psnr(r: &DelightResult, id: &str, truth: &Image) -> (f64, usize) {
+/// The recovered object `id` (its UVs kept) and its albedo texture as a bilinear bitmap.
+fn recovered_texture<'a>(r: &'a DelightResult, id: &str) -> (&'a ObjectResult, BitmapDesc) {
     let o = r.objects.iter().find(|o| o.id == id).unwrap();
     assert!(o.atlas.kept_uvs, "{id}: UVs not kept");
     let got = BitmapDesc {
@@ -89,6 +90,13 @@ fn texture_psnr(r: &DelightResult, id: &str, truth: &Image) -> (f64, usize) {
         wrap: WrapMode::Clamp,
         path: "kd".into(),
     };
+    (o, got)
+}
+
+/// PSNR (peak 1) of a recovered texture against the truth over the texels seen by some view;
+/// the recovered texture is looked up at the truth's texel centres (same UVs).
+fn texture_psnr(r: &DelightResult, id: &str, truth: &Image) -> (f64, usize) {
+    let (o, got) = recovered_texture(r, id);
     let (w, h) = (o.atlas.width, o.atlas.height);
     let (mut se, mut n) = (0f64, 0usize);
     for y in 0..truth.height {
@@ -122,14 +130,7 @@ fn texture_psnr_at_cameras(
     truth: &BitmapDesc,
 ) -> (f64, usize) {
     const SUB: usize = 4;
-    let o = r.objects.iter().find(|o| o.id == id).unwrap();
-    assert!(o.atlas.kept_uvs, "{id}: UVs not kept");
-    let got = BitmapDesc {
-        image: std::sync::Arc::new(o.kd_image()),
-        filter: FilterType::Bilinear,
-        wrap: WrapMode::Clamp,
-        path: "kd".into(),
-    };
+    let (_, got) = recovered_texture(r, id);
     let shape = scene.shapes.iter().position(|s| s.id == id).unwrap() as u32;
     let (mut se, mut n) = (0f64, 0usize);
     for v in views {

@@ -79,68 +79,6 @@ fn fbm(p: Vec3, octaves: u32, seed: u32) -> f32 {
     sum / norm
 }
 
-/// Unit icosphere: positions and counter-clockwise (seen from outside) triangles.
-fn icosphere(levels: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-    let g = (1.0 + 5f32.sqrt()) / 2.0;
-    let mut pos: Vec<Vec3> = [
-        (-1.0, g, 0.0),
-        (1.0, g, 0.0),
-        (-1.0, -g, 0.0),
-        (1.0, -g, 0.0),
-        (0.0, -1.0, g),
-        (0.0, 1.0, g),
-        (0.0, -1.0, -g),
-        (0.0, 1.0, -g),
-        (g, 0.0, -1.0),
-        (g, 0.0, 1.0),
-        (-g, 0.0, -1.0),
-        (-g, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
-    .collect();
-    let mut tris: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut midpoint = |a: u32, b: u32, pos: &mut Vec<Vec3>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                pos.push(((pos[a as usize] + pos[b as usize]) * 0.5).normalize());
-                (pos.len() - 1) as u32
-            })
-        };
-        let mut next = Vec::with_capacity(tris.len() * 4);
-        for [a, b, c] in tris {
-            let ab = midpoint(a, b, &mut pos);
-            let bc = midpoint(b, c, &mut pos);
-            let ca = midpoint(c, a, &mut pos);
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        tris = next;
-    }
-    (pos, tris)
-}
-
 /// Angle-weighted vertex normals.
 fn vertex_normals(pos: &[Vec3], tris: &[[u32; 3]]) -> Vec<Vec3> {
     let mut acc = vec![Vec3::ZERO; pos.len()];
@@ -165,7 +103,8 @@ struct ScanMesh {
 }
 
 fn scan_mesh() -> ScanMesh {
-    let (dirs, tris) = icosphere(LEVELS);
+    let sphere = opal::geometry::shapes::icosphere(LEVELS);
+    let (dirs, tris) = (sphere.positions, sphere.indices);
     // Footprint of the tall box (cbox/meshes/tall_box.obj): centre of its four floor corners.
     let centre_xz = Vec2::new(-0.33, -0.28);
     let half = Vec3::new(0.3, 0.6, 0.3);
