@@ -23,12 +23,14 @@
 //! pixel's 4 × 4 stratified rays, recovered vs truth albedo at the hit UVs); the texel-space
 //! PSNR over the seen texels is printed beside it.
 //!
-//! Measured 2026-11-26 (20 M paths/pass, 5 passes; 17–35 min per test on 2 shared cores): the
-//! gains within 0.053 % (`exposure+wb`) and 0.041 % (3 views off), worst constant albedo 0.94 /
-//! 0.97 % (exact views 0.95 %), poster 44.15 dB at the cameras (39.75 dB texel space) — but
-//! **the floor texture fails: 36.33 dB at the cameras (35.49 dB texel space), the exact views
-//! included** (texel space 35.48 dB). The gains change nothing against exact views; the floor is
-//! a limit of the de-lighting on this data (issue 17), not of the view gains.
+//! Measured 2026-11-26 (20 M paths/pass, 5 passes; 13–35 min per test on 2 shared cores), exact
+//! views: worst constant albedo 0.78 % (back wall), poster 44.14 dB at the cameras (39.75 dB
+//! texel space), **floor 39.18 dB at the cameras (37.47 dB texel space)** — after the indirect
+//! irradiance was smoothed over the texels light reaches only (before: floor 36.33 dB, 35.49 dB
+//! texel space, the zeros under the pedestal darkening its contact edges; `docs/delight.md`,
+//! "Contact edges"). The gained tests were last run before that fix: gains within 0.053 %
+//! (`exposure+wb`) and 0.041 % (3 views off), worst constant albedo 0.94 / 0.97 %, poster
+//! 44.15 dB, floor as with exact views then.
 
 use opal::image::Image;
 use opal::math::Vec2;

@@ -57,7 +57,7 @@ pub mod views;
 pub use direct::{MAX_LIGHTS_PER_TEXEL, PENUMBRA_DILATION, direct_irradiance};
 pub use gains::{ViewGain, ViewGainMode, ViewGainSettings, ViewGains, apply_view_gains};
 pub use observe::{RegionStats, luminance_map, object_masks, pixel_ray, region_stats};
-pub use pipeline::{delight, smooth_in_charts};
+pub use pipeline::{delight, reached_texels, smooth_in_charts, smooth_in_charts_masked};
 pub use result::{DelightResult, IterationStats, ObjectResult};
 pub use settings::{DebugSettings, DelightSettings, UpdateRule};
 pub use timing::{StageClock, cpu_seconds};
