@@ -28,9 +28,10 @@
 //! texel space), **floor 39.18 dB at the cameras (37.47 dB texel space)** — after the indirect
 //! irradiance was smoothed over the texels light reaches only (before: floor 36.33 dB, 35.49 dB
 //! texel space, the zeros under the pedestal darkening its contact edges; `docs/delight.md`,
-//! "Contact edges"). The gained tests were last run before that fix: gains within 0.053 %
-//! (`exposure+wb`) and 0.041 % (3 views off), worst constant albedo 0.94 / 0.97 %, poster
-//! 44.15 dB, floor as with exact views then.
+//! "Contact edges"). `mitsuba_room_view_gains_acceptance` after the fix: gains within 0.042 %,
+//! worst constant albedo 0.77 %, floor 39.12 dB at the cameras (37.42 dB texel space), poster
+//! 44.14 dB — passes. `mitsuba_room_three_views_off` was last run before the fix (gains within
+//! 0.041 %, worst albedo 0.97 %, floor then as with exact views).
 
 use opal::image::Image;
 use opal::math::Vec2;
