@@ -157,22 +157,7 @@ fn report(r: &DelightResult, desc: &SceneDesc) -> f64 {
     let mut worst = 0f64;
     for (id, t) in truth_albedos(desc) {
         let o = r.objects.iter().find(|o| o.id == id).unwrap();
-        let m = o.mean_kd_observed();
-        let rel: Vec<f64> = (0..3).map(|c| m[c] / t[c] as f64 - 1.0).collect();
-        println!(
-            "{id:18} kd {:.4} {:.4} {:.4}  truth {:.4} {:.4} {:.4}  rel {:+.2}% {:+.2}% {:+.2}%  seen {:.0}%",
-            m[0],
-            m[1],
-            m[2],
-            t[0],
-            t[1],
-            t[2],
-            100.0 * rel[0],
-            100.0 * rel[1],
-            100.0 * rel[2],
-            100.0 * o.seen_fraction
-        );
-        worst = rel.iter().fold(worst, |a, b| a.max(b.abs()));
+        worst = worst.max(common::constant_albedo_error(o, t));
     }
     for it in &r.iterations {
         println!(

@@ -179,23 +179,7 @@ fn report(r: &DelightResult, desc: &SceneDesc, views: &[View]) -> (f64, f64) {
         let o = r.objects.iter().find(|o| o.id == s.id).unwrap();
         match &s.bsdf {
             BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(c) } => {
-                let (m, t) = (o.mean_kd_observed(), c.0);
-                let rel: Vec<f64> = (0..3).map(|k| m[k] / t[k] as f64 - 1.0).collect();
-                println!(
-                    "{:12} kd {:.4} {:.4} {:.4}  truth {:.4} {:.4} {:.4}  rel {:+.2}% {:+.2}% {:+.2}%  seen {:.0}%",
-                    s.id,
-                    m[0],
-                    m[1],
-                    m[2],
-                    t[0],
-                    t[1],
-                    t[2],
-                    100.0 * rel[0],
-                    100.0 * rel[1],
-                    100.0 * rel[2],
-                    100.0 * o.seen_fraction
-                );
-                worst = rel.iter().fold(worst, |a, b| a.max(b.abs()));
+                worst = worst.max(common::constant_albedo_error(o, c.0));
             }
             BsdfDesc::Diffuse { reflectance: TextureDesc::Bitmap(b) } => {
                 let (p, n) = texture_psnr(r, &s.id, &b.image);

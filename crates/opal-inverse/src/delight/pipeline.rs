@@ -40,6 +40,31 @@ fn existing_texture_size(b: &BsdfDesc) -> Option<(usize, usize)> {
     }
 }
 
+/// Calls `f(j)` for the texels `j` of texel `i`'s chart (`chart[j] == chart[i]`) within `r`
+/// texels of `i` along one axis of the `w × h` atlas, in increasing order: the window of the
+/// separable in-chart box filters.
+#[inline]
+fn chart_window(
+    i: usize,
+    r: usize,
+    horizontal: bool,
+    (w, h): (usize, usize),
+    chart: &[u32],
+    mut f: impl FnMut(usize),
+) {
+    let (x, y) = ((i % w) as i64, (i / w) as i64);
+    for d in -(r as i64)..=(r as i64) {
+        let (xx, yy) = if horizontal { (x + d, y) } else { (x, y + d) };
+        if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
+            continue;
+        }
+        let j = yy as usize * w + xx as usize;
+        if chart[j] == chart[i] {
+            f(j);
+        }
+    }
+}
+
 /// Box filter of radius `r` texels within charts (separable, normalised over covered texels of
 /// the same chart).
 pub fn smooth_in_charts(v: &[[f32; 3]], a: &Atlas, r: usize) -> Vec<[f32; 3]> {
@@ -55,22 +80,14 @@ pub fn smooth_in_charts(v: &[[f32; 3]], a: &Atlas, r: usize) -> Vec<[f32; 3]> {
                 if chart[i] == u32::MAX {
                     return src[i];
                 }
-                let (x, y) = ((i % w) as i64, (i / w) as i64);
                 let mut acc = [0f64; 3];
                 let mut k = 0f64;
-                for d in -(r as i64)..=(r as i64) {
-                    let (xx, yy) = if horizontal { (x + d, y) } else { (x, y + d) };
-                    if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
-                        continue;
+                chart_window(i, r, horizontal, (w, h), &chart, |j| {
+                    for c in 0..3 {
+                        acc[c] += src[j][c] as f64;
                     }
-                    let j = yy as usize * w + xx as usize;
-                    if chart[j] == chart[i] {
-                        for c in 0..3 {
-                            acc[c] += src[j][c] as f64;
-                        }
-                        k += 1.0;
-                    }
-                }
+                    k += 1.0;
+                });
                 acc.map(|x| (x / k) as f32)
             })
             .collect()
@@ -100,20 +117,12 @@ pub fn smooth_in_charts_masked(v: &[[f32; 3]], a: &Atlas, r: usize, mask: &[bool
                 if chart[i] == u32::MAX {
                     return acc;
                 }
-                let (x, y) = ((i % w) as i64, (i / w) as i64);
-                for d in -(r as i64)..=(r as i64) {
-                    let (xx, yy) = if horizontal { (x + d, y) } else { (x, y + d) };
-                    if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
-                        continue;
+                chart_window(i, r, horizontal, (w, h), &chart, |j| {
+                    for c in 0..3 {
+                        acc.0[c] += src[j].0[c];
                     }
-                    let j = yy as usize * w + xx as usize;
-                    if chart[j] == chart[i] {
-                        for c in 0..3 {
-                            acc.0[c] += src[j].0[c];
-                        }
-                        acc.1 += src[j].1;
-                    }
-                }
+                    acc.1 += src[j].1;
+                });
                 acc
             })
             .collect()

@@ -1,7 +1,7 @@
 //! Helpers shared by the de-lighting integration tests (`delight.rs`, `delight_room.rs`).
 
-use opal_inverse::delight::DelightResult;
 use opal_inverse::delight::views::View;
+use opal_inverse::delight::{DelightResult, ObjectResult};
 
 /// Multiplies each view's image by its per-channel gains (what a camera with those gains would
 /// record).
@@ -45,4 +45,26 @@ pub fn gain_error<G: Copy + Into<f64>>(r: &DelightResult, truth: &[[G; 3]]) -> f
     }
     println!("worst gain error {:.3} %", 100.0 * worst);
     worst
+}
+
+/// Worst relative channel error of object `o`'s mean observed albedo against the constant
+/// `truth` (printed with the values and the seen fraction).
+pub fn constant_albedo_error(o: &ObjectResult, truth: [f32; 3]) -> f64 {
+    let m = o.mean_kd_observed();
+    let rel: Vec<f64> = (0..3).map(|c| m[c] / truth[c] as f64 - 1.0).collect();
+    println!(
+        "{:18} kd {:.4} {:.4} {:.4}  truth {:.4} {:.4} {:.4}  rel {:+.2}% {:+.2}% {:+.2}%  seen {:.0}%",
+        o.id,
+        m[0],
+        m[1],
+        m[2],
+        truth[0],
+        truth[1],
+        truth[2],
+        100.0 * rel[0],
+        100.0 * rel[1],
+        100.0 * rel[2],
+        100.0 * o.seen_fraction
+    );
+    rel.iter().fold(0.0, |a, b| a.max(b.abs()))
 }
