@@ -272,6 +272,12 @@ impl Scene {
         SurfaceInteraction { p: ray.at(h.t), ng, ns, uv, shape: shape_idx, prim: h.prim, t: h.t }
     }
 
+    /// Unit geometric normal of triangle `prim` (the one [`Scene::interaction_at`] returns).
+    #[inline]
+    pub(crate) fn prim_ng(&self, prim: u32) -> Vec3 {
+        self.prim_ng[prim as usize]
+    }
+
     /// Light attached to the hit triangle, if it emits.
     #[inline]
     pub fn light_at(&self, prim: u32) -> Option<(usize, &Light)> {

@@ -45,10 +45,10 @@ use crate::sampling::Rng;
 use crate::scene::{Scene, SurfaceInteraction};
 use crate::spectrum::Spectrum;
 use rayon::prelude::*;
-use wavefront::Shading;
 
 mod wavefront;
 mod wide;
+mod wide_row;
 
 /// Path-tracer settings.
 #[derive(Clone, Copy, Debug)]
@@ -302,27 +302,39 @@ impl Row {
 enum RowPlan {
     /// [`render_row_scalar`].
     Scalar,
-    /// [`wavefront::render_row`] with this shading.
-    Wavefront(Shading),
+    /// [`wavefront::render_row`] (the scalar vertex in packet lanes).
+    Wavefront,
+    /// [`wide_row::render_row`] with this compilation of the kernels.
+    Wide(wide::Kernel),
 }
 
 impl RowPlan {
-    /// The fastest measured plan for the scene: diffuse scenes lit by triangles take the
-    /// wavefront with the wide vertex; other tiny scenes the wavefront with the scalar vertex;
-    /// other scenes behind the BVH a path at a time.
+    /// The fastest measured plan for the scene: diffuse scenes lit by triangles take the wide
+    /// row; other tiny scenes the wavefront with the scalar vertex; other scenes behind the BVH
+    /// a path at a time.
     fn choose(scene: &Scene) -> RowPlan {
-        let wide = wavefront::wide_shading(scene, wide::Kernel::detect());
-        match (scene.accel(), wide) {
-            (_, Some(sh)) => RowPlan::Wavefront(sh),
-            (Accel::Tiny { .. } | Accel::Split(_), None) => RowPlan::Wavefront(Shading::Scalar),
+        match (scene.accel(), wavefront::wide_kernel(scene, wide::Kernel::detect())) {
+            (_, Some(k)) => RowPlan::Wide(k),
+            (Accel::Tiny { .. } | Accel::Split(_), None) => RowPlan::Wavefront,
             (Accel::Bvh(_), None) => RowPlan::Scalar,
         }
     }
 
-    fn render(self, scene: &Scene, cam: usize, y: usize, s: &PathSettings, row: &mut Row) {
-        match self {
-            RowPlan::Scalar => render_row_scalar(scene, cam, y, s, row),
-            RowPlan::Wavefront(sh) => wavefront::render_row(scene, cam, y, s, row, sh),
+    /// Renders row `y` of camera `cam` (`tables`: the scene's, for [`RowPlan::Wide`]).
+    fn render(
+        self,
+        scene: &Scene,
+        tables: Option<&wide_row::Tables>,
+        cam: usize,
+        y: usize,
+        s: &PathSettings,
+        row: &mut Row,
+    ) {
+        match (self, tables) {
+            (RowPlan::Wide(k), Some(t)) => wide_row::render_row(scene, t, cam, y, s, row, k),
+            (RowPlan::Wide(_), None) => panic!("the wide row needs the scene's tables"),
+            (RowPlan::Wavefront, _) => wavefront::render_row(scene, cam, y, s, row),
+            (RowPlan::Scalar, _) => render_row_scalar(scene, cam, y, s, row),
         }
     }
 }
@@ -332,11 +344,12 @@ pub fn render(scene: &Scene, cam: usize, s: &PathSettings, on_row: &(dyn Fn() + 
     let camera = &scene.cameras[cam];
     let (w, h) = (camera.width, camera.height);
     let plan = RowPlan::choose(scene);
+    let tables = matches!(plan, RowPlan::Wide(_)).then(|| wide_row::Tables::new(scene));
     let rows: Vec<Row> = (0..h)
         .into_par_iter()
         .map(|y| {
             let mut row = Row::new(w);
-            plan.render(scene, cam, y, s, &mut row);
+            plan.render(scene, tables.as_ref(), cam, y, s, &mut row);
             on_row();
             row
         })

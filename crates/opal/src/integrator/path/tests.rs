@@ -1,6 +1,6 @@
 //! The row wavefront and the wide diffuse vertex against the scalar path tracer, bit for bit.
 
-use super::wavefront::{self, Shading};
+use super::wavefront;
 use super::wide::Kernel;
 use super::*;
 use crate::scene::load::load_mitsuba_xml;
@@ -11,16 +11,16 @@ fn bits(r: &Row) -> Vec<u32> {
 }
 
 /// Every wavefront plan available on this CPU for `scene`.
-fn plans(scene: &Scene) -> Vec<Shading> {
-    let mut v = vec![Shading::Scalar];
+fn plans(scene: &Scene) -> Vec<RowPlan> {
+    let mut v = vec![RowPlan::Wavefront];
     let kernels = if Kernel::detect() == Kernel::Avx2 {
         vec![Kernel::Portable, Kernel::Avx2]
     } else {
         vec![Kernel::Portable]
     };
     for k in kernels {
-        let sh = wavefront::wide_shading(scene, k).expect("an all-diffuse scene lit by triangles");
-        v.push(sh);
+        let k = wavefront::wide_kernel(scene, k).expect("an all-diffuse scene lit by triangles");
+        v.push(RowPlan::Wide(k));
     }
     v
 }
@@ -28,6 +28,7 @@ fn plans(scene: &Scene) -> Vec<Shading> {
 /// Renders rows `ys` with the scalar loop and every wavefront plan and compares the bits.
 fn rows_agree(scene: &Scene, ys: &[usize], cases: &[(u32, i32, i32)]) {
     let w = scene.cameras[0].width;
+    let tables = wide_row::Tables::new(scene);
     for &(spp, max_depth, rr_depth) in cases {
         let s = PathSettings { spp, max_depth, rr_depth, hide_emitters: false, seed: 7 };
         let mut lit = false;
@@ -37,7 +38,7 @@ fn rows_agree(scene: &Scene, ys: &[usize], cases: &[(u32, i32, i32)]) {
             lit |= a.mean.iter().any(|p| !p.is_black());
             for sh in plans(scene) {
                 let mut b = Row::new(w);
-                wavefront::render_row(scene, 0, y, &s, &mut b, sh);
+                sh.render(scene, Some(&tables), 0, y, &s, &mut b);
                 assert_eq!(bits(&a), bits(&b), "row {y}, spp {spp}, max depth {max_depth}, {sh:?}");
                 assert_eq!(a.bad, b.bad);
             }
@@ -108,9 +109,9 @@ fn wide_rows_on_a_textured_mesh_equal_scalar_rows() {
 fn wide_shading_only_on_diffuse_scenes() {
     let xml = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cbox/scene.xml");
     let mut desc = load_mitsuba_xml(&xml, &[]).unwrap();
-    assert!(wavefront::wide_shading(&Scene::build(&desc).unwrap(), Kernel::Portable).is_some());
+    assert!(wavefront::wide_kernel(&Scene::build(&desc).unwrap(), Kernel::Portable).is_some());
     let phong =
         crate::bsdf::Phong::new(20.0, crate::bsdf::Phong::normalised_factor(20.0), Spectrum::splat(0.5));
     desc.shapes[0].bsdf = crate::scene::desc::BsdfDesc::Lobe(crate::bsdf::Bxdfs::Phong(phong));
-    assert!(wavefront::wide_shading(&Scene::build(&desc).unwrap(), Kernel::Portable).is_none());
+    assert!(wavefront::wide_kernel(&Scene::build(&desc).unwrap(), Kernel::Portable).is_none());
 }

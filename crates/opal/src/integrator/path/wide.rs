@@ -2,8 +2,8 @@
 //! (constant or textured Lambertian, one- or two-sided) and whose lights are all emitting
 //! triangles: frame, next-event sample of a triangle light, Lambert evaluation and pdf, MIS
 //! weight, the shadow ray, the cosine-weighted BSDF sample and the next ray, in the lanes of
-//! [`F`] (`[f32; 8]` loops that LLVM turns into AVX2 instructions inside [`vertex8`]'s AVX2
-//! compilation, SSE2 elsewhere).
+//! [`F`] (`[f32; 8]` loops that LLVM turns into AVX2 instructions inside the AVX2 compilation
+//! of the row that inlines [`vertex_lanes`], SSE2 elsewhere).
 //!
 //! **Scalar original**: [`super::vertex`] with [`crate::bsdf::Lambert`] and
 //! [`crate::light::Light::sample_li`]. Every lane performs the same IEEE operations in the same
@@ -11,8 +11,8 @@
 //! `normalize_or_zero` multiplies by `1 / length`, branches become selects of both sides), and
 //! no fused multiply-add is ever formed, so each lane's results are **the same bits** as the
 //! scalar vertex's — on any instruction set. What stays scalar, per lane, in the caller
-//! ([`super::wavefront`]): the hit's interaction (gathers), emission found at the hit, the
-//! texture lookup, the light choice, the random numbers and the Russian roulette.
+//! ([`super::wide_row`]): emission found at the hit, the texture lookup, the light choice, the
+//! random numbers and the Russian roulette.
 //!
 //! Tests: `super::tests::wavefront_rows_equal_scalar_rows_bit_for_bit` (Cornell box, tiny
 //! accelerator) and `super::tests::wide_rows_on_a_textured_mesh_equal_scalar_rows` (a textured
@@ -105,7 +105,7 @@ impl L3 {
     }
 }
 
-/// Inputs of [`vertex8`], lane `k` = packet lane `k` (lanes not in `active` are ignored; their
+/// Inputs of [`vertex_lanes`], lane `k` = packet lane `k` (lanes not in `active` are ignored; their
 /// values only need to be finite or zero).
 #[derive(Clone, Debug, Default)]
 pub(super) struct VertexIn {
@@ -145,7 +145,7 @@ pub(super) struct VertexIn {
     pub ub: [[f32; W]; 2],
 }
 
-/// Results of [`vertex8`].
+/// Results of [`vertex_lanes`].
 #[derive(Clone, Debug, Default)]
 pub(super) struct VertexOut {
     /// A shadow ray is to be traced (its contribution added if unoccluded).
@@ -211,7 +211,7 @@ fn frame(n: L3) -> (L3, L3) {
 
 /// One diffuse path vertex for the lanes in `inp.active` (see the module docs).
 #[inline(always)]
-fn vertex_lanes(inp: &VertexIn) -> VertexOut {
+pub(super) fn vertex_lanes(inp: &VertexIn) -> VertexOut {
     let z = Fw::splat(0.0);
     let active = M(inp.active);
     let wo = inp.wo.lanes();
@@ -328,7 +328,9 @@ impl Kernel {
     }
 }
 
-/// One diffuse path vertex for the active lanes (see the module docs).
+/// One diffuse path vertex for the active lanes (see the module docs), in the compilation
+/// `kernel` names.
+#[inline(always)]
 pub(super) fn vertex8(inp: &VertexIn, kernel: Kernel) -> VertexOut {
     match kernel {
         #[cfg(target_arch = "x86_64")]
@@ -338,8 +340,11 @@ pub(super) fn vertex8(inp: &VertexIn, kernel: Kernel) -> VertexOut {
     }
 }
 
+/// [`vertex_lanes`] compiled for AVX2 on its own (inlined into the row it measured slower: the
+/// row's register pressure scalarised part of it).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
+#[inline(never)]
 fn vertex_avx2(inp: &VertexIn) -> VertexOut {
     vertex_lanes(inp)
 }

@@ -1,0 +1,522 @@
+//! The row wavefront of all-diffuse scenes lit by emitting triangles, with the eight lanes'
+//! path state held as a **structure of arrays**: rays, throughputs, radiance sums, depths and
+//! the previous vertices live in `[f32; 8]` arrays that feed the ray packets, the hit
+//! reconstruction and the wide vertex ([`super::wide::vertex_lanes`]) directly, without packing a
+//! lane's structures into lanes and back at every step.
+//!
+//! Per step: the lanes' rays are traced together ([`crate::accel::Accel::intersect8`]); each hit
+//! triangle's **row** (a 128-byte record built once per render: geometric normal, corner uvs,
+//! corner normals, shape, light, flags, constant albedo — [`Tables`]) is copied into the lanes,
+//! and the hit point, shading normal and uv are reconstructed for the eight lanes at once with
+//! the operations of [`Scene::interaction_at`]; bitmap texels are prefetched as soon as the uvs
+//! are known and looked up after the lanes' random numbers are drawn. Emitters found at a hit
+//! (rare) go through the scalar [`super::emission`]. Then the wide vertex, the Russian roulette,
+//! the batched shadow rays ([`crate::accel::Accel::occluded8`]) and the pixel bookkeeping.
+//!
+//! **Scalar original**: [`super::render_row_scalar`] (one path at a time through
+//! [`super::vertex`]). Every lane draws the same numbers in the same order and performs the same
+//! IEEE operations in the same order (no fused multiply-add), so the row is **the same bits** as
+//! the scalar row, in the AVX2 and in the portable compilation.
+//!
+//! Tests: `super::tests` (`wavefront_rows_equal_scalar_rows_bit_for_bit`: the Cornell box;
+//! `wide_rows_on_a_textured_mesh_equal_scalar_rows`: a textured sphere with corner normals, a
+//! two-sided box, behind `Accel::Split` and a plain BVH).
+
+// lane loops index several arrays by the lane
+#![allow(clippy::needless_range_loop)]
+
+use super::wavefront::fill_inactive;
+use super::wide::{self, Kernel, V3, VertexIn, W};
+use super::{PathSettings, PathState, PixelSums, Row, emission};
+use crate::accel::packet::RayPacket;
+use crate::geometry::Ray;
+use crate::light::Light;
+use crate::math::{Vec2, Vec3};
+use crate::sampling::Rng;
+use crate::scene::{Material, Scene, SurfaceInteraction};
+use crate::spectrum::Spectrum;
+use crate::texture::Texture;
+
+/// Floats per triangle row (128 bytes).
+const ROW: usize = 32;
+/// Geometric normal (3 floats).
+const R_NG: usize = 0;
+/// Corner uvs `u0 v0 u1 v1 u2 v2`.
+const R_UV: usize = 3;
+/// Corner normals `x0 y0 z0 x1 y1 z1 x2 y2 z2`.
+const R_N: usize = 9;
+/// Shape index (bits).
+const R_SHAPE: usize = 18;
+/// Light index (bits; [`NO_LIGHT`] for none).
+const R_LIGHT: usize = 19;
+/// `F_*` flags (bits).
+const R_FLAGS: usize = 20;
+/// Constant albedo (3 floats) when `F_CONST`.
+const R_ALBEDO: usize = 21;
+/// Fields copied into the lanes per hit.
+const FIELDS: usize = 24;
+
+const NO_LIGHT: u32 = u32::MAX;
+const F_NORMALS: u32 = 1;
+const F_TWO_SIDED: u32 = 2;
+const F_CONST: u32 = 4;
+const F_UVS: u32 = 8;
+
+/// Floats per light record: corners (9), unit normal (3), area, radiance (3).
+const LIGHT: usize = 16;
+
+#[repr(C, align(64))]
+#[derive(Clone, Copy)]
+struct TriRow([f32; ROW]);
+
+/// Per-triangle rows and per-light records of a scene, built once per render.
+pub(super) struct Tables<'a> {
+    rows: Vec<TriRow>,
+    lights: Vec<[f32; LIGHT]>,
+    /// Each shape's bitmap reflectance (`None` for constants, whose value is in the rows).
+    textures: Vec<Option<&'a Texture>>,
+}
+
+impl<'a> Tables<'a> {
+    /// The tables of an all-diffuse scene lit by triangles (see [`super::wavefront::wide_kernel`]).
+    pub(super) fn new(scene: &'a Scene) -> Tables<'a> {
+        let mut rows = Vec::new();
+        let mut textures = Vec::with_capacity(scene.shapes.len());
+        for (si, sh) in scene.shapes.iter().enumerate() {
+            let Material::Diffuse { reflectance, two_sided } = &sh.material else {
+                unreachable!("the wide row runs on diffuse scenes only")
+            };
+            let constant = match reflectance {
+                Texture::Constant(c) => Some(*c),
+                Texture::Bitmap(_) => None,
+            };
+            textures.push(constant.is_none().then_some(reflectance));
+            let m = &sh.mesh;
+            let mut flags = 0;
+            flags |= if m.normals.is_empty() { 0 } else { F_NORMALS };
+            flags |= if *two_sided { F_TWO_SIDED } else { 0 };
+            flags |= if constant.is_some() { F_CONST } else { 0 };
+            flags |= if m.uvs.is_empty() { 0 } else { F_UVS };
+            for (j, idx) in m.indices.iter().enumerate() {
+                let prim = sh.first_prim + j as u32;
+                let [i0, i1, i2] = idx.map(|i| i as usize);
+                let mut r = [0.0f32; ROW];
+                r[R_NG..R_NG + 3].copy_from_slice(&scene.prim_ng(prim).to_array());
+                if !m.uvs.is_empty() {
+                    for (c, i) in [i0, i1, i2].into_iter().enumerate() {
+                        r[R_UV + 2 * c..R_UV + 2 * c + 2].copy_from_slice(&m.uvs[i].to_array());
+                    }
+                }
+                if !m.normals.is_empty() {
+                    for (c, i) in [i0, i1, i2].into_iter().enumerate() {
+                        r[R_N + 3 * c..R_N + 3 * c + 3].copy_from_slice(&m.normals[i].to_array());
+                    }
+                }
+                r[R_SHAPE] = f32::from_bits(si as u32);
+                r[R_LIGHT] = f32::from_bits(scene.light_at(prim).map_or(NO_LIGHT, |(l, _)| l as u32));
+                r[R_FLAGS] = f32::from_bits(flags);
+                if let Some(c) = constant {
+                    r[R_ALBEDO..R_ALBEDO + 3].copy_from_slice(&c.0);
+                }
+                rows.push(TriRow(r));
+            }
+        }
+        let lights = scene
+            .lights
+            .iter()
+            .map(|l| {
+                let Light::Triangle(t) = l else { unreachable!("the wide row: triangle lights only") };
+                let mut r = [0.0f32; LIGHT];
+                for c in 0..3 {
+                    r[3 * c..3 * c + 3].copy_from_slice(&t.p[c].to_array());
+                }
+                r[9..12].copy_from_slice(&t.n.to_array());
+                r[12] = t.area;
+                r[13..16].copy_from_slice(&t.radiance.0);
+                r
+            })
+            .collect();
+        Tables { rows, lights, textures }
+    }
+}
+
+/// The pixel a lane renders.
+struct Pixel {
+    x: usize,
+    rng: Rng,
+    sums: PixelSums,
+    /// Samples started.
+    started: u32,
+}
+
+/// The lanes' path state, a structure of arrays.
+struct Lanes {
+    px: [Option<Pixel>; W],
+    o: V3,
+    d: V3,
+    tmax: [f32; W],
+    beta: V3,
+    l: V3,
+    depth: [i32; W],
+    /// The previous (diffuse) vertex, for the MIS weight of an emitter hit.
+    has_prev: [bool; W],
+    prev_p: V3,
+    prev_pdf: [f32; W],
+}
+
+impl Lanes {
+    /// Starts lane `k`'s next sample: the camera ray through a jittered point of its pixel.
+    #[inline]
+    fn start_sample(&mut self, k: usize, scene: &Scene, cam: usize, y: usize) {
+        let px = self.px[k].as_mut().expect("a lane with a pixel");
+        let p = Vec2::new(px.x as f32 + px.rng.next_f32(), y as f32 + px.rng.next_f32());
+        px.started += 1;
+        let ray = scene.cameras[cam].generate_ray(p);
+        self.o.set(k, ray.o.to_array());
+        self.d.set(k, ray.d.to_array());
+        self.tmax[k] = ray.tmax;
+        self.beta.set(k, [1.0; 3]);
+        self.l.set(k, [0.0; 3]);
+        self.depth[k] = 0;
+        self.has_prev[k] = false;
+    }
+}
+
+/// Renders row `y` of camera `cam` into `row` (see the module docs).
+pub(super) fn render_row(
+    scene: &Scene,
+    tables: &Tables,
+    cam: usize,
+    y: usize,
+    s: &PathSettings,
+    row: &mut Row,
+    kernel: Kernel,
+) {
+    match kernel {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Kernel::detect` returns Avx2 only when the CPU has AVX2 and FMA
+        Kernel::Avx2 => unsafe { render_row_avx2(scene, tables, cam, y, s, row) },
+        _ => render_row_lanes(scene, tables, cam, y, s, row, kernel),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn render_row_avx2(scene: &Scene, tables: &Tables, cam: usize, y: usize, s: &PathSettings, row: &mut Row) {
+    render_row_lanes(scene, tables, cam, y, s, row, Kernel::Avx2)
+}
+
+#[inline(always)]
+fn render_row_lanes(
+    scene: &Scene,
+    tables: &Tables,
+    cam: usize,
+    y: usize,
+    s: &PathSettings,
+    row: &mut Row,
+    kernel: Kernel,
+) {
+    let w = scene.cameras[cam].width;
+    let accel = scene.accel();
+    let mut next_x = 0usize;
+    let mut take_pixel = || -> Option<Pixel> {
+        if next_x >= w || s.spp == 0 {
+            return None;
+        }
+        let x = next_x;
+        next_x += 1;
+        Some(Pixel {
+            x,
+            rng: Rng::new(s.seed, cam as u64, (y * w + x) as u64),
+            sums: PixelSums::default(),
+            started: 0,
+        })
+    };
+    let mut lanes = Lanes {
+        px: std::array::from_fn(|_| None),
+        o: V3::default(),
+        d: V3::default(),
+        tmax: [0.0; W],
+        beta: V3::default(),
+        l: V3::default(),
+        depth: [0; W],
+        has_prev: [false; W],
+        prev_p: V3::default(),
+        prev_pdf: [0.0; W],
+    };
+    for k in 0..W {
+        lanes.px[k] = take_pixel();
+        if lanes.px[k].is_some() {
+            lanes.start_sample(k, scene, cam, y);
+        }
+    }
+    let mut inp = VertexIn::default();
+    loop {
+        let alive: [bool; W] = std::array::from_fn(|k| lanes.px[k].is_some());
+        if !alive.contains(&true) {
+            break;
+        }
+        let mut packet = RayPacket {
+            o: [lanes.o.x, lanes.o.y, lanes.o.z],
+            d: [lanes.d.x, lanes.d.y, lanes.d.z],
+            tmax: lanes.tmax,
+        };
+        fill_inactive(&mut packet, alive);
+        let hits = accel.intersect8(&packet);
+        let mut ended = [false; W];
+        let shaded = step(scene, tables, s, &mut lanes, &alive, &hits, &mut ended, &mut inp, kernel);
+        if let Some(out) = shaded {
+            trace_shadows(scene, &mut lanes, &out);
+        }
+        for k in 0..W {
+            if !ended[k] {
+                continue;
+            }
+            let px = lanes.px[k].as_mut().expect("an ended lane has a pixel");
+            px.sums.add(Spectrum(lanes.l.get(k)));
+            if px.started < s.spp {
+                lanes.start_sample(k, scene, cam, y);
+            } else {
+                row.put(px.x, &px.sums);
+                lanes.px[k] = take_pixel();
+                if lanes.px[k].is_some() {
+                    lanes.start_sample(k, scene, cam, y);
+                }
+            }
+        }
+    }
+}
+
+/// The hit lanes' rows, field by field.
+type Gathered = [[f32; W]; FIELDS];
+
+/// One step after the closest hits: hit reconstruction, emission, depth limit, the lanes'
+/// random numbers, light choices and texture lookups, the wide vertex and the Russian
+/// roulette. Returns the vertex outputs (shadow rays pending) when some lane was shaded.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn step(
+    scene: &Scene,
+    tables: &Tables,
+    s: &PathSettings,
+    lanes: &mut Lanes,
+    alive: &[bool; W],
+    hits: &crate::accel::packet::PacketHits,
+    ended: &mut [bool; W],
+    inp: &mut VertexIn,
+    kernel: Kernel,
+) -> Option<wide::VertexOut> {
+    let mut hit = [false; W];
+    let mut g: Gathered = [[0.0; W]; FIELDS];
+    for k in 0..W {
+        if !alive[k] {
+            continue;
+        }
+        if hits.prim[k] < 0 {
+            ended[k] = true;
+            continue;
+        }
+        hit[k] = true;
+        let r = &tables.rows[hits.prim[k] as usize].0;
+        for f in 0..FIELDS {
+            g[f][k] = r[f];
+        }
+    }
+    if !hit.contains(&true) {
+        return None;
+    }
+    let si = interaction(&g, lanes, hits);
+    // texels a while before their lookups
+    for k in 0..W {
+        if hit[k] && g[R_FLAGS][k].to_bits() & F_CONST == 0 {
+            if let Some(t) = tables.textures[g[R_SHAPE][k].to_bits() as usize] {
+                t.prefetch(Vec2::new(si.uv[0][k], si.uv[1][k]));
+            }
+        }
+    }
+    let sampler = scene.light_sampler().expect("wide shading needs a light sampler");
+    inp.active = [0; W];
+    let mut any = false;
+    for k in 0..W {
+        if !hit[k] {
+            continue;
+        }
+        let light = g[R_LIGHT][k].to_bits();
+        if light == NO_LIGHT {
+            lanes.depth[k] += 1;
+        } else {
+            emission_lane(scene, s, lanes, k, &si, hits, g[R_SHAPE][k].to_bits());
+        }
+        if s.max_depth >= 0 && lanes.depth[k] >= s.max_depth {
+            ended[k] = true;
+            continue;
+        }
+        let px = lanes.px[k].as_mut().expect("a hit lane has a pixel");
+        // the scalar vertex's draws, in its order: light choice, light sample, BSDF sample
+        let rng = &mut px.rng;
+        let (idx, pmf, _) = sampler.sample(rng.next_f32());
+        let ul = rng.next_2d();
+        let _uc = rng.next_f32();
+        let ub = rng.next_2d();
+        let lr = &tables.lights[idx];
+        inp.l0.set(k, [lr[0], lr[1], lr[2]]);
+        inp.l1.set(k, [lr[3], lr[4], lr[5]]);
+        inp.l2.set(k, [lr[6], lr[7], lr[8]]);
+        inp.ln.set(k, [lr[9], lr[10], lr[11]]);
+        inp.larea[k] = lr[12];
+        inp.lrad.set(k, [lr[13], lr[14], lr[15]]);
+        inp.pmf[k] = pmf;
+        inp.ul[0][k] = ul.x;
+        inp.ul[1][k] = ul.y;
+        inp.ub[0][k] = ub.x;
+        inp.ub[1][k] = ub.y;
+        inp.active[k] = u32::MAX;
+        any = true;
+    }
+    if !any {
+        return None;
+    }
+    for k in 0..W {
+        let flags = g[R_FLAGS][k].to_bits();
+        inp.two_sided[k] = if flags & F_TWO_SIDED != 0 { u32::MAX } else { 0 };
+        if inp.active[k] == 0 {
+            continue;
+        }
+        let albedo = if flags & F_CONST != 0 {
+            [g[R_ALBEDO][k], g[R_ALBEDO + 1][k], g[R_ALBEDO + 2][k]]
+        } else {
+            let tex = tables.textures[g[R_SHAPE][k].to_bits() as usize].expect("a bitmap reflectance");
+            tex.eval(Vec2::new(si.uv[0][k], si.uv[1][k])).0
+        };
+        inp.albedo.set(k, albedo);
+    }
+    for k in 0..W {
+        inp.wo.x[k] = -lanes.d.x[k];
+        inp.wo.y[k] = -lanes.d.y[k];
+        inp.wo.z[k] = -lanes.d.z[k];
+    }
+    inp.p = si.p;
+    inp.ng = si.ng;
+    inp.ns = si.ns;
+    inp.beta = lanes.beta;
+    let out = wide::vertex8(inp, kernel);
+    for k in 0..W {
+        if inp.active[k] == 0 {
+            continue;
+        }
+        if out.next[k] == 0 {
+            ended[k] = true;
+            continue;
+        }
+        let mut beta = Spectrum(out.beta.get(k));
+        lanes.has_prev[k] = true;
+        lanes.prev_p.set(k, si.p.get(k));
+        lanes.prev_pdf[k] = out.pdf[k];
+        lanes.o.set(k, out.no.get(k));
+        lanes.d.set(k, out.nd.get(k));
+        lanes.tmax[k] = f32::INFINITY;
+        // Russian roulette, as in the scalar vertex (η = 1: `eta_scale` stays 1)
+        if s.rr_depth >= 0 && lanes.depth[k] >= s.rr_depth {
+            let q = beta.max_component().min(0.95);
+            let px = lanes.px[k].as_mut().expect("a shaded lane has a pixel");
+            if px.rng.next_f32() >= q {
+                ended[k] = true;
+                lanes.beta.set(k, beta.0);
+                continue;
+            }
+            beta /= q;
+        }
+        lanes.beta.set(k, beta.0);
+    }
+    Some(out)
+}
+
+/// The hit reconstruction of the eight lanes.
+struct Interaction {
+    p: V3,
+    ng: V3,
+    ns: V3,
+    uv: [[f32; W]; 2],
+}
+
+/// [`Scene::interaction_at`] for the eight lanes from their rows (the same operations: hit
+/// point `o + d·t`, `b0 = 1 − b1 − b2`, corner-normal interpolation normalised by its length,
+/// corner-uv interpolation).
+#[inline(always)]
+fn interaction(g: &Gathered, lanes: &Lanes, hits: &crate::accel::packet::PacketHits) -> Interaction {
+    let mut si = Interaction { p: V3::default(), ng: V3::default(), ns: V3::default(), uv: [[0.0; W]; 2] };
+    for k in 0..W {
+        let (t, b1, b2) = (hits.t[k], hits.b1[k], hits.b2[k]);
+        let b0 = 1.0 - b1 - b2;
+        si.p.x[k] = lanes.o.x[k] + lanes.d.x[k] * t;
+        si.p.y[k] = lanes.o.y[k] + lanes.d.y[k] * t;
+        si.p.z[k] = lanes.o.z[k] + lanes.d.z[k] * t;
+        let ng = [g[R_NG][k], g[R_NG + 1][k], g[R_NG + 2][k]];
+        let n = |c: usize| g[R_N + c][k] * b0 + g[R_N + 3 + c][k] * b1 + g[R_N + 6 + c][k] * b2;
+        let (nx, ny, nz) = (n(0), n(1), n(2));
+        let len = (nx * nx + ny * ny + nz * nz).sqrt();
+        let flags = g[R_FLAGS][k].to_bits();
+        let ns = if flags & F_NORMALS != 0 && len > 0.0 { [nx / len, ny / len, nz / len] } else { ng };
+        si.ng.set(k, ng);
+        si.ns.set(k, ns);
+        let uv = |c: usize| g[R_UV + c][k] * b0 + g[R_UV + 2 + c][k] * b1 + g[R_UV + 4 + c][k] * b2;
+        let has_uv = flags & F_UVS != 0;
+        si.uv[0][k] = if has_uv { uv(0) } else { 0.0 };
+        si.uv[1][k] = if has_uv { uv(1) } else { 0.0 };
+    }
+    si
+}
+
+/// [`super::emission`] for lane `k`, whose hit triangle emits (the scalar code on the lane's
+/// state).
+#[inline(never)]
+fn emission_lane(
+    scene: &Scene,
+    s: &PathSettings,
+    lanes: &mut Lanes,
+    k: usize,
+    si: &Interaction,
+    hits: &crate::accel::packet::PacketHits,
+    shape: u32,
+) {
+    let mut st = PathState {
+        l: Spectrum(lanes.l.get(k)),
+        beta: Spectrum(lanes.beta.get(k)),
+        depth: lanes.depth[k],
+        eta_scale: 1.0,
+        prev: lanes.has_prev[k].then(|| (Vec3::from_array(lanes.prev_p.get(k)), lanes.prev_pdf[k], false)),
+    };
+    let ray =
+        Ray { o: Vec3::from_array(lanes.o.get(k)), d: Vec3::from_array(lanes.d.get(k)), tmax: lanes.tmax[k] };
+    let it = SurfaceInteraction {
+        p: Vec3::from_array(si.p.get(k)),
+        ng: Vec3::from_array(si.ng.get(k)),
+        ns: Vec3::from_array(si.ns.get(k)),
+        uv: Vec2::new(si.uv[0][k], si.uv[1][k]),
+        shape,
+        prim: hits.prim[k] as u32,
+        t: hits.t[k],
+    };
+    lanes.depth[k] = emission(scene, s, &mut st, &ray, &it);
+    lanes.l.set(k, st.l.0);
+}
+
+/// Traces the pending shadow rays of `out` together and adds the contributions of those that
+/// reach their light.
+#[inline(always)]
+fn trace_shadows(scene: &Scene, lanes: &mut Lanes, out: &wide::VertexOut) {
+    let shadowed: [bool; W] = std::array::from_fn(|k| out.shadow[k] != 0);
+    if !shadowed.contains(&true) {
+        return;
+    }
+    let mut rays =
+        RayPacket { o: [out.so.x, out.so.y, out.so.z], d: [out.sd.x, out.sd.y, out.sd.z], tmax: out.stmax };
+    fill_inactive(&mut rays, shadowed);
+    let blocked = scene.accel().occluded8(&rays);
+    for k in 0..W {
+        if shadowed[k] && blocked >> k & 1 == 0 {
+            let l = Spectrum(lanes.l.get(k)) + Spectrum(out.contrib.get(k));
+            lanes.l.set(k, l.0);
+        }
+    }
+}
