@@ -233,6 +233,12 @@ impl LightSampler {
         let w: Vec<f64> = lights.iter().map(|l| l.power().luminance().max(0.0) as f64).collect();
         Distribution1D::new(&w).map(|dist| LightSampler { dist })
     }
+    /// Picks a light: (index, probability) — the first two results of [`LightSampler::sample`].
+    #[inline]
+    pub fn choose(&self, u: f32) -> (usize, f32) {
+        let (i, p) = self.dist.sample_index(u);
+        (i, p as f32)
+    }
     /// Picks a light: (index, probability, re-used uniform).
     #[inline]
     pub fn sample(&self, u: f32) -> (usize, f32, f32) {

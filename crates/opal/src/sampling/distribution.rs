@@ -50,6 +50,15 @@ impl Distribution1D {
     /// Sample an item with `u ∈ [0,1)`; returns (index, pmf, u re-scaled to [0,1) within the item).
     #[inline]
     pub fn sample(&self, u: f32) -> (usize, f64, f32) {
+        let (i, p) = self.sample_index(u);
+        let u = u as f64;
+        let du = if p > 0.0 { ((u - self.cdf[i]) / p).clamp(0.0, 1.0 - 1e-7) } else { 0.0 };
+        (i, p, du as f32)
+    }
+
+    /// The index and pmf of [`Distribution1D::sample`], without the re-scaled number.
+    #[inline]
+    pub fn sample_index(&self, u: f32) -> (usize, f64) {
         let u = u as f64;
         // first index with cdf[i+1] > u; a few items (lights) are counted without branches (the
         // same count as the binary search's: the cdf is non-decreasing)
@@ -64,9 +73,7 @@ impl Distribution1D {
         while self.pmf(i) == 0.0 && i + 1 < self.len() {
             i += 1;
         }
-        let p = self.pmf(i);
-        let du = if p > 0.0 { ((u - self.cdf[i]) / p).clamp(0.0, 1.0 - 1e-7) } else { 0.0 };
-        (i, p, du as f32)
+        (i, self.pmf(i))
     }
 }
 

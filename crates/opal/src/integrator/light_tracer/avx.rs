@@ -88,30 +88,6 @@ pub(super) fn next_f32_lanes(state: &mut [u64; W], inc: &[u64; W], m: u32) -> [f
     r
 }
 
-/// The 8×8 transpose: `out[k][l] = rows[l][k]`.
-#[target_feature(enable = "avx2")]
-#[inline]
-fn transpose8(r: [__m256; 8]) -> [__m256; 8] {
-    let lo = |a, b| _mm256_unpacklo_ps(a, b);
-    let hi = |a, b| _mm256_unpackhi_ps(a, b);
-    let (t0, t1, t2, t3) = (lo(r[0], r[1]), hi(r[0], r[1]), lo(r[2], r[3]), hi(r[2], r[3]));
-    let (t4, t5, t6, t7) = (lo(r[4], r[5]), hi(r[4], r[5]), lo(r[6], r[7]), hi(r[6], r[7]));
-    let (s0, s1) = (_mm256_shuffle_ps::<0x44>(t0, t2), _mm256_shuffle_ps::<0xEE>(t0, t2));
-    let (s2, s3) = (_mm256_shuffle_ps::<0x44>(t1, t3), _mm256_shuffle_ps::<0xEE>(t1, t3));
-    let (s4, s5) = (_mm256_shuffle_ps::<0x44>(t4, t6), _mm256_shuffle_ps::<0xEE>(t4, t6));
-    let (s6, s7) = (_mm256_shuffle_ps::<0x44>(t5, t7), _mm256_shuffle_ps::<0xEE>(t5, t7));
-    [
-        _mm256_permute2f128_ps::<0x20>(s0, s4),
-        _mm256_permute2f128_ps::<0x20>(s1, s5),
-        _mm256_permute2f128_ps::<0x20>(s2, s6),
-        _mm256_permute2f128_ps::<0x20>(s3, s7),
-        _mm256_permute2f128_ps::<0x31>(s0, s4),
-        _mm256_permute2f128_ps::<0x31>(s1, s5),
-        _mm256_permute2f128_ps::<0x31>(s2, s6),
-        _mm256_permute2f128_ps::<0x31>(s3, s7),
-    ]
-}
-
 /// `vertex`'s pending weights `w = kd_pi · ratio` (`Spectrum * f32`) of the lanes in `pend`:
 /// `β *= w` there; returns the lanes whose `w` is black.
 #[target_feature(enable = "avx2")]
@@ -156,7 +132,7 @@ pub(super) fn vertices(
         let half = |h: usize| -> [__m256; 8] {
             std::array::from_fn(|l| unsafe { _mm256_loadu_ps(base.add(32 * prim[l] as usize + 8 * h)) })
         };
-        let (a, b) = (transpose8(half(0)), transpose8(half(1)));
+        let (a, b) = (crate::simd::transpose8(half(0)), crate::simd::transpose8(half(1)));
         std::array::from_fn(|k| if k < 8 { a[k] } else { b[k - 8] })
     };
     let field = |k: usize| head[k];
@@ -227,7 +203,7 @@ pub(super) fn deposit_values(
 ) -> DepositLanes {
     // the last 8 floats of the eight rows, transposed (loads and shuffles: cheaper than
     // gathers, see `vertices`)
-    let tail = transpose8(std::array::from_fn(|l| {
+    let tail = crate::simd::transpose8(std::array::from_fn(|l| {
         let r = &rows[prim[l] as usize].0;
         // SAFETY: 8 floats of a 32-float row, unaligned load.
         unsafe { _mm256_loadu_ps(r.as_ptr().add(24)) }

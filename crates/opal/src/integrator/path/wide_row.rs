@@ -251,6 +251,8 @@ fn render_row_lanes(
         }
     }
     let mut inp = VertexIn::default();
+    // the hit lanes' rows (other lanes keep earlier, finite values)
+    let mut g: Gathered = [[0.0; W]; FIELDS];
     loop {
         let alive: [bool; W] = std::array::from_fn(|k| lanes.px[k].is_some());
         if !alive.contains(&true) {
@@ -264,7 +266,7 @@ fn render_row_lanes(
         fill_inactive(&mut packet, alive);
         let hits = accel.intersect8(&packet);
         let mut ended = [false; W];
-        let shaded = step(scene, tables, s, &mut lanes, &alive, &hits, &mut ended, &mut inp, kernel);
+        let shaded = step(scene, tables, s, &mut lanes, &alive, &hits, &mut ended, &mut inp, &mut g, kernel);
         if let Some(out) = shaded {
             trace_shadows(scene, &mut lanes, &out);
         }
@@ -304,28 +306,21 @@ fn step(
     hits: &crate::accel::packet::PacketHits,
     ended: &mut [bool; W],
     inp: &mut VertexIn,
+    g: &mut Gathered,
     kernel: Kernel,
 ) -> Option<wide::VertexOut> {
     let mut hit = [false; W];
-    let mut g: Gathered = [[0.0; W]; FIELDS];
     for k in 0..W {
-        if !alive[k] {
-            continue;
-        }
-        if hits.prim[k] < 0 {
-            ended[k] = true;
-            continue;
-        }
-        hit[k] = true;
-        let r = &tables.rows[hits.prim[k] as usize].0;
-        for f in 0..FIELDS {
-            g[f][k] = r[f];
+        if alive[k] {
+            hit[k] = hits.prim[k] >= 0;
+            ended[k] = !hit[k];
         }
     }
     if !hit.contains(&true) {
         return None;
     }
-    let si = interaction(&g, lanes, hits);
+    gather(tables, hits, &hit, g, kernel);
+    let si = interaction(g, lanes, hits);
     // texels a while before their lookups
     for k in 0..W {
         if hit[k] && g[R_FLAGS][k].to_bits() & F_CONST == 0 {
@@ -354,7 +349,7 @@ fn step(
         let px = lanes.px[k].as_mut().expect("a hit lane has a pixel");
         // the scalar vertex's draws, in its order: light choice, light sample, BSDF sample
         let rng = &mut px.rng;
-        let (idx, pmf, _) = sampler.sample(rng.next_f32());
+        let (idx, pmf) = sampler.choose(rng.next_f32());
         let ul = rng.next_2d();
         let _uc = rng.next_f32();
         let ub = rng.next_2d();
@@ -429,6 +424,53 @@ fn step(
         lanes.beta.set(k, beta.0);
     }
     Some(out)
+}
+
+/// Copies the hit lanes' rows into `g` (field by field; other lanes keep their values, or get
+/// row 0's with AVX2).
+#[inline(always)]
+fn gather(
+    tables: &Tables,
+    hits: &crate::accel::packet::PacketHits,
+    hit: &[bool; W],
+    g: &mut Gathered,
+    kernel: Kernel,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Avx2 {
+        let prim: [usize; W] = std::array::from_fn(|k| if hit[k] { hits.prim[k] as usize } else { 0 });
+        // SAFETY: Kernel::Avx2 only where the CPU has AVX2 (`Kernel::detect`).
+        unsafe { gather_avx2(&tables.rows, &prim, g) };
+        return;
+    }
+    let _ = kernel;
+    for k in 0..W {
+        if hit[k] {
+            let r = &tables.rows[hits.prim[k] as usize].0;
+            for f in 0..FIELDS {
+                g[f][k] = r[f];
+            }
+        }
+    }
+}
+
+/// The first [`FIELDS`] floats of rows `prim[0..8]`, transposed into `g` (three 8×8 blocks).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn gather_avx2(rows: &[TriRow], prim: &[usize; W], g: &mut Gathered) {
+    use std::arch::x86_64::*;
+    let r: [&TriRow; W] = std::array::from_fn(|k| &rows[prim[k]]);
+    for b in 0..FIELDS / 8 {
+        // SAFETY: each row holds ROW = 32 ≥ 8·3 floats; unaligned loads within it.
+        let block: [__m256; 8] =
+            std::array::from_fn(|k| unsafe { _mm256_loadu_ps(r[k].0.as_ptr().add(8 * b)) });
+        let t = crate::simd::transpose8(block);
+        for (f, v) in t.into_iter().enumerate() {
+            // SAFETY: `g[8b + f]` is an array of 8 floats.
+            unsafe { _mm256_storeu_ps(g[8 * b + f].as_mut_ptr(), v) };
+        }
+    }
 }
 
 /// The hit reconstruction of the eight lanes.
