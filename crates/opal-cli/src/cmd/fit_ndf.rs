@@ -3,13 +3,13 @@
 //! [`opal_inverse::ndf_fit`], [`opal_inverse::export`]; formats in `docs/formats.md`,
 //! usage in `docs/fit-ndf.md`.
 
-use super::gonio::{PlateFile, SimulateArgs, build_config, read_plate_file};
+use crate::plate::{PlateFile, PlateOverrides, build_config, parse_scattering, read_plate_file};
 use crate::plot::{LinePlot, Series, save_panels};
 use crate::util::{ensure_not_input, write_atomic, write_bytes_atomic};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use opal::bsdf::microfacet::Ndfs;
-use opal::gonio::{Face, Scattering, Side};
+use opal::gonio::{Face, Side};
 use opal_inverse::export::{LightSide, bsdf_csv, face_bsdf, ndf_table, zemax_bsdf};
 use opal_inverse::measured::Measured;
 use opal_inverse::ndf_fit::{
@@ -115,16 +115,6 @@ pub struct FitOutcome {
     pub report: FitReport,
 }
 
-fn parse_scattering(s: &str) -> Result<Scattering> {
-    Ok(match s {
-        "single" => Scattering::Single,
-        "single-mitsuba" => Scattering::SingleMitsuba,
-        "single-hc" => Scattering::SingleHeightCorrelated,
-        "multiple" => Scattering::Multiple,
-        _ => bail!("--scattering: must be single, single-mitsuba, single-hc or multiple, got {s:?}"),
-    })
-}
-
 /// Builds the fitting problem from the arguments (bad input → error, exit 2).
 pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
     let family = match a.family.as_str() {
@@ -144,7 +134,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         "both" => FitOn::Both,
         s => bail!("--fit-on: must be T, R or both, got {s:?}"),
     };
-    let scattering = parse_scattering(&a.scattering)?;
+    let scattering = parse_scattering(&a.scattering, "--scattering")?;
     if !(a.floor.is_finite() && (0.0..1.0).contains(&a.floor)) {
         bail!("--floor: must be in [0, 1), got {}", a.floor);
     }
@@ -172,8 +162,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         None => PlateFile::default(),
     };
     let photons = a.photons.or(file.run.photons).unwrap_or(200_000);
-    let sim = SimulateArgs {
-        output: PathBuf::new(),
+    let sim = PlateOverrides {
         photons: Some(photons),
         seed: a.seed,
         ior: a.ior,
@@ -184,7 +173,6 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         // placeholder NDF for the rough face (replaced at every evaluation)
         ndf: Some("ggx:0.1".into()),
         scattering: Some(a.scattering.clone()),
-        ..Default::default()
     };
     let cfg = build_config(&file, &sim)?;
     let rf = matches!(cfg.plate.front, Face::Rough { .. });
@@ -546,7 +534,7 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
     let dir = out_dir.join("fit_ndf");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let csv = dir.join("measured.csv");
-    write_bytes_atomic(&csv, DEMO_CSV.as_bytes())?;
+    write_bytes_atomic(&csv, crate::assets::FIT_NDF_DEMO_CSV.as_bytes())?;
     let a = FitNdfArgs {
         measured: csv,
         output: dir.clone(),
@@ -563,8 +551,6 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
     let o = fit_and_write(&a, &dir)?;
     Ok(o.json)
 }
-
-static DEMO_CSV: &str = include_str!("../../data/fit_ndf_demo.csv");
 
 #[cfg(test)]
 mod tests {
@@ -597,7 +583,7 @@ mod tests {
             );
             let p = d.path().join(format!("p{i}.toml"));
             std::fs::write(&p, &text).unwrap();
-            let cfg = build_config(&read_plate_file(&p).unwrap(), &SimulateArgs::default()).unwrap();
+            let cfg = build_config(&read_plate_file(&p).unwrap(), &PlateOverrides::default()).unwrap();
             let Face::Rough { ndf: back, .. } = cfg.plate.back else { panic!("rough back") };
             for deg in [0.0f64, 2.0, 5.0, 9.0, 15.0, 30.0] {
                 let t = deg.to_radians();
