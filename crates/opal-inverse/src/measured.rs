@@ -186,15 +186,45 @@ impl Measured {
         if rows.is_empty() {
             return Err(parse_err(path, hline + 1, 1, "no data rows"));
         }
+        Self::from_rows(path, rows, i_err.is_some())
+    }
+
+    /// Curves from points `(incidence_deg, side, detector_deg, value, value_stderr)` in any
+    /// order (other readers, e.g. [`crate::scatter::zemax`]); the checks after reading of
+    /// [`Measured::parse`] apply (no data, duplicated point, values ≤ 0 everywhere, empty side).
+    pub fn from_rows(
+        path: &Path,
+        mut rows: Vec<(f64, Side, f64, f64, f64)>,
+        has_stderr: bool,
+    ) -> opal::Result<Self> {
+        if rows.is_empty() {
+            return Err(Error::invalid(format!("{}", path.display()), "no data points"));
+        }
+        rows.sort_by(|a, b| {
+            a.0.total_cmp(&b.0).then((a.1 == Side::T).cmp(&(b.1 == Side::T))).then(a.2.total_cmp(&b.2))
+        });
+        for w in rows.windows(2) {
+            let key = |r: &(f64, Side, f64, f64, f64)| {
+                ((r.0 * 1e6).round() as i64, r.1, (r.2 * 1e6).round() as i64)
+            };
+            if key(&w[0]) == key(&w[1]) {
+                return Err(Error::invalid(
+                    format!("{}", path.display()),
+                    format!(
+                        "duplicated point (incidence {}°, side {}, detector {}°)",
+                        w[0].0,
+                        w[0].1.label(),
+                        w[0].2
+                    ),
+                ));
+            }
+        }
         if !rows.iter().any(|r| r.3 > 0.0) {
             return Err(Error::invalid(
                 format!("{}: value", path.display()),
                 "every value is ≤ 0 (nothing was measured)",
             ));
         }
-        rows.sort_by(|a, b| {
-            a.0.total_cmp(&b.0).then((a.1 == Side::T).cmp(&(b.1 == Side::T))).then(a.2.total_cmp(&b.2))
-        });
         let mut curves: Vec<Curve> = Vec::new();
         for (inc, side, det, v, se) in rows {
             let inc_r = inc.to_radians();
@@ -241,7 +271,7 @@ impl Measured {
                 ));
             }
         }
-        Ok(Measured { path: path.to_path_buf(), curves, has_stderr: i_err.is_some() })
+        Ok(Measured { path: path.to_path_buf(), curves, has_stderr })
     }
 
     /// Curves from a plane-of-incidence simulation (synthetic measurements for round trips):
