@@ -274,6 +274,41 @@ impl Measured {
         Ok(Measured { path: path.to_path_buf(), curves, has_stderr })
     }
 
+    /// Merges measurements of one sample read from several files (e.g. a BRDF and a BTDF
+    /// `.BSDF` file); a curve (incidence, side) present in two files is an error naming both.
+    /// The result is named `a + b + …` and has standard errors when every part has.
+    pub fn merge(parts: Vec<Measured>) -> opal::Result<Self> {
+        let name = parts.iter().map(|m| m.path.display().to_string()).collect::<Vec<_>>().join(" + ");
+        let mut rows = Vec::new();
+        for (i, m) in parts.iter().enumerate() {
+            for c in &m.curves {
+                for o in &parts[..i] {
+                    if o.curves.iter().any(|d| d.side == c.side && (d.incidence - c.incidence).abs() < 1e-9) {
+                        return Err(Error::invalid(
+                            format!("{}", m.path.display()),
+                            format!(
+                                "incidence {}° side {} is also in {} (each curve in one file only)",
+                                fmt(c.incidence.to_degrees()),
+                                c.side.label(),
+                                o.path.display()
+                            ),
+                        ));
+                    }
+                }
+                for k in 0..c.detector.len() {
+                    rows.push((
+                        c.incidence.to_degrees(),
+                        c.side,
+                        c.detector[k].to_degrees(),
+                        c.value[k],
+                        c.stderr[k],
+                    ));
+                }
+            }
+        }
+        Self::from_rows(Path::new(&name), rows, parts.iter().all(|m| m.has_stderr))
+    }
+
     /// Curves from a plane-of-incidence simulation (synthetic measurements for round trips):
     /// detectors with a zero value are kept (they carry no information but are valid).
     pub fn from_gonio(gonio: &opal::gonio::Gonio, res: &opal::gonio::GonioResult, name: &str) -> Self {

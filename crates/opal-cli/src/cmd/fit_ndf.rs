@@ -10,20 +10,24 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use opal::bsdf::microfacet::Ndfs;
 use opal::gonio::{Face, Side};
-use opal_inverse::export::{LightSide, bsdf_csv, face_bsdf, ndf_table, zemax_bsdf};
+use opal_inverse::export::{FaceModel, LightSide, bsdf_csv, ndf_table, zemax_bsdf};
 use opal_inverse::measured::Measured;
 use opal_inverse::ndf_fit::{
     Candidate, Evaluation, Family, FitOn, FitOptions, FitReport, FitSetup, Model, Problem, ScaleFit,
     ScaleMode, ScaleSetup, fit,
 };
+use opal_inverse::scatter::zemax;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `opal fit-ndf`.
 #[derive(Args, Debug, Default, Clone)]
 pub struct FitNdfArgs {
-    /// Measured curves (CSV: incidence_deg,side,detector_deg,value[,value_stderr]).
-    pub measured: PathBuf,
+    /// Measured curves: CSV (incidence_deg,side,detector_deg,value[,value_stderr]) or Zemax
+    /// tabular .BSDF (by extension; BRDF → side R, BTDF → side T); several files are merged
+    /// (e.g. sample_brdf.BSDF sample_btdf.BSDF).
+    #[arg(required = true)]
+    pub measured: Vec<PathBuf>,
     /// Sample, beam and detectors (PLATE.toml of `opal gonio simulate`; its NDF is ignored).
     #[arg(long)]
     pub plate: Option<PathBuf>,
@@ -115,6 +119,28 @@ pub struct FitOutcome {
     pub report: FitReport,
 }
 
+/// Reads the measured files (CSV or Zemax `.BSDF` by extension) and merges them.
+pub fn read_measured(paths: &[PathBuf]) -> Result<Measured> {
+    let mut parts = Vec::new();
+    for p in paths {
+        let m = if zemax::is_zemax_path(p) {
+            zemax::read(p).and_then(|t| t.to_measured(p))
+        } else {
+            Measured::read(p)
+        };
+        parts.push(m.map_err(|e| anyhow!("{e}"))?);
+    }
+    match parts.len() {
+        0 => bail!("no measured file given"),
+        1 => Ok(parts.pop().expect("one part")),
+        _ => Measured::merge(parts).map_err(|e| anyhow!("{e}")),
+    }
+}
+
+fn measured_names(a: &FitNdfArgs) -> String {
+    a.measured.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ")
+}
+
 /// Builds the fitting problem from the arguments (bad input → error, exit 2).
 pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
     let family = match a.family.as_str() {
@@ -156,7 +182,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
     if !(rel_error.is_finite() && (0.0..1.0).contains(&rel_error)) {
         bail!("--rel-error: must be in [0, 1) (a relative standard error, e.g. 0.02), got {rel_error}");
     }
-    let measured = Measured::read(&a.measured).map_err(|e| anyhow!("{e}"))?;
+    let measured = read_measured(&a.measured)?;
     let file = match &a.plate {
         Some(p) => read_plate_file(p)?,
         None => PlateFile::default(),
@@ -285,7 +311,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     }
     write_bytes_atomic(&out.join("ndf.csv"), t.as_bytes())?;
     // BSDF of both sides
-    let bsdf = face_bsdf(ndf.clone(), s.plate.ior).map_err(|e| anyhow!("{e}"))?;
+    let bsdf = FaceModel::new(ndf.clone(), s.plate.ior, s.scattering).map_err(|e| anyhow!("{e}"))?;
     let aois: Vec<f64> = (0..18).map(|i| i as f64 * 5.0).collect();
     let (table, tis) = bsdf_csv(&bsdf, &aois, 2.0, 10.0);
     write_bytes_atomic(&out.join("bsdf.csv"), table.as_bytes())?;
@@ -293,9 +319,11 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     let az: Vec<f64> = (0..=18).map(|i| i as f64 * 10.0).collect();
     let rad: Vec<f64> = (0..=45).map(|i| i as f64 * 2.0).collect();
     let comment = format!(
-        "rough face, {}, n = {}, single scattering, power BSDF (1/sr)",
+        "rough face, {}, n = {}, {} ({}), power BSDF (1/sr)",
         best.model.describe(),
-        s.plate.ior
+        s.plate.ior,
+        bsdf.describe(),
+        a.scattering
     );
     for side in [LightSide::AirToMaterial, LightSide::MaterialToAir] {
         for (tr, kind) in [(false, "brdf"), (true, "btdf")] {
@@ -308,7 +336,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "# fitted by opal fit-ndf from {}\n[plate]\nior = {}\nthickness_mm = {}\nentry = \"{}\"\n\
          [plate.front]\ntype = \"polished\"\n[plate.back]\ntype = \"rough\"\n{}scattering = \"{}\"\n\
          [beam]\ndivergence_deg = {}\n[detectors]\nradius_deg = {}\n",
-        a.measured.display(),
+        measured_names(a),
         s.plate.ior,
         s.plate.thickness_mm,
         if s.rough_front { "rough" } else { "smooth" },
@@ -381,7 +409,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "seconds": seconds,
         "candidates": report.candidates.iter().map(candidate_json).collect::<Vec<_>>(),
         "selection": decisions,
-        "measured": a.measured.display().to_string(),
+        "measured": measured_names(a),
         "face": face,
     });
     write_bytes_atomic(&out.join("fit.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
@@ -488,7 +516,7 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
 /// `opal fit-ndf …`: exit 0 on a converged fit, 1 when an optimiser did not converge (the
 /// outputs are still written), 2 on bad input.
 pub fn run(a: FitNdfArgs) -> Result<i32> {
-    let mut inputs: Vec<&Path> = vec![&a.measured];
+    let mut inputs: Vec<&Path> = a.measured.iter().map(PathBuf::as_path).collect();
     if let Some(p) = &a.plate {
         inputs.push(p);
     }
@@ -536,7 +564,7 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
     let csv = dir.join("measured.csv");
     write_bytes_atomic(&csv, crate::assets::FIT_NDF_DEMO_CSV.as_bytes())?;
     let a = FitNdfArgs {
-        measured: csv,
+        measured: vec![csv],
         output: dir.clone(),
         family: "auto".into(),
         scattering: "single".into(),
