@@ -442,11 +442,13 @@ fn scale_json(p: &Problem, f: &ScaleFit) -> serde_json::Value {
 fn write_curves_csv(path: &Path, p: &Problem, ev: &Evaluation) -> Result<()> {
     write_atomic(path, |f| {
         let mut w = std::io::BufWriter::new(f);
-        writeln!(w, "incidence_deg,side,detector_deg,measured,measured_stderr,fitted,fitted_stderr")?;
+        let hemi = p.measured.hemisphere;
+        write!(w, "incidence_deg,side,detector_deg,measured,measured_stderr,fitted,fitted_stderr")?;
+        writeln!(w, "{}", if hemi { ",detector_azimuth_deg" } else { "" })?;
         for (ci, c) in p.measured.curves.iter().enumerate() {
             let r = &ev.result.incidences[p.incidence_index(ci)];
             for (k, &d) in p.detector_indices(ci).iter().enumerate() {
-                writeln!(
+                write!(
                     w,
                     "{},{},{},{:.8e},{:.8e},{:.8e},{:.8e}",
                     (c.incidence.to_degrees() * 1e6).round() / 1e6,
@@ -457,11 +459,38 @@ fn write_curves_csv(path: &Path, p: &Problem, ev: &Evaluation) -> Result<()> {
                     r.value[d],
                     r.value_stderr[d]
                 )?;
+                if hemi {
+                    write!(w, ",{}", (c.azimuth[k].to_degrees() * 1e6).round() / 1e6)?;
+                }
+                writeln!(w)?;
             }
         }
         w.flush()?;
         Ok(())
     })
+}
+
+/// The points of curve `c` that the plots show, as (index, signed angle in degrees): all of a
+/// plane-of-incidence curve; of a hemisphere measurement those in the plane of incidence
+/// (azimuth 0 → +θ, 180° → −θ).
+fn plot_points(p: &Problem, c: &opal_inverse::measured::Curve) -> Vec<(usize, f64)> {
+    if !p.measured.hemisphere {
+        return (0..c.detector.len()).map(|k| (k, c.detector[k].to_degrees())).collect();
+    }
+    let mut v: Vec<(usize, f64)> = (0..c.detector.len())
+        .filter_map(|k| {
+            let (t, a) = (c.detector[k].to_degrees(), c.azimuth[k].to_degrees());
+            if t == 0.0 || a.abs() < 1e-6 {
+                Some((k, t))
+            } else if (a - 180.0).abs() < 1e-6 {
+                Some((k, -t))
+            } else {
+                None
+            }
+        })
+        .collect();
+    v.sort_by(|a, b| a.1.total_cmp(&b.1));
+    v
 }
 
 fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<()> {
@@ -477,15 +506,16 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
         for (ci, c) in p.measured.curves.iter().enumerate().filter(|(_, c)| c.side == side) {
             let color = incs.iter().position(|&t| t == c.incidence).unwrap_or(0);
             let r = &ev.result.incidences[p.incidence_index(ci)];
-            let deg = |k: usize| c.detector[k].to_degrees();
+            let ks = plot_points(p, c);
             let label = format!("{}°", (c.incidence.to_degrees() * 100.0).round() / 100.0);
-            let meas: Vec<(f64, f64)> = (0..c.value.len()).map(|k| (deg(k), c.value[k])).collect();
+            let meas: Vec<(f64, f64)> = ks.iter().map(|&(k, x)| (x, c.value[k])).collect();
             let idx = p.detector_indices(ci);
-            let fit: Vec<(f64, f64)> = (0..c.value.len()).map(|k| (deg(k), r.value[idx[k]])).collect();
+            let fit: Vec<(f64, f64)> = ks.iter().map(|&(k, x)| (x, r.value[idx[k]])).collect();
             let floor = p.setup.floor_rel * c.max();
-            let rel: Vec<(f64, f64)> = (0..c.value.len())
-                .filter(|&k| c.value[k] > 0.0 && c.value[k] >= floor)
-                .map(|k| (deg(k), (r.value[idx[k]] - c.value[k]) / c.value[k]))
+            let rel: Vec<(f64, f64)> = ks
+                .iter()
+                .filter(|&&(k, _)| c.value[k] > 0.0 && c.value[k] >= floor)
+                .map(|&(k, x)| (x, (r.value[idx[k]] - c.value[k]) / c.value[k]))
                 .collect();
             series.push(Series { name: format!("{label} measured"), points: meas, color, dashed: false });
             series.push(Series { name: format!("{label} fitted"), points: fit, color, dashed: true });

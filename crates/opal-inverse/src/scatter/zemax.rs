@@ -57,7 +57,7 @@
 //! `crate::export` tests (an exported face read back reproduces the face);
 //! `crates/opal-cli/tests/fit_ndf.rs` (`opal fit-ndf` on a `.BSDF` file).
 
-use crate::measured::Measured;
+use crate::measured::{Measured, Row};
 use opal::Error;
 use opal::gonio::Side;
 use std::fmt::Write;
@@ -197,7 +197,14 @@ impl BsdfTable {
             let b = self.block(ch, rot, i);
             let mut push = |p: f64, f: f64| {
                 if p.abs() < 90.0 {
-                    rows.push((aoi, side, p, f * p.to_radians().cos(), 0.0));
+                    rows.push(Row {
+                        incidence_deg: aoi,
+                        side,
+                        detector_deg: p,
+                        azimuth_deg: 0.0,
+                        value: f * p.to_radians().cos(),
+                        stderr: 0.0,
+                    });
                 }
             };
             for (k, &r) in self.radial_deg.iter().enumerate() {
@@ -209,7 +216,7 @@ impl BsdfTable {
                 }
             }
         }
-        Measured::from_rows(path, rows, false)
+        Measured::from_rows(path, rows, false, false)
     }
 }
 

@@ -3,7 +3,9 @@
 //! file (`PlaneSymmetrical`, azimuths 0 and 180, radial 0…90° every 2°, value = intensity /
 //! cos θ) is fitted to α within 10 % (as the CSV test of `tests/fit_ndf.rs`); the fitted
 //! `.BSDF` exports read back through the same command line; malformed `.BSDF` files exit 2
-//! naming file, line and value. Default tier (~10 s).
+//! naming file, line and value; a full-hemisphere measurement (CSV with `detector_azimuth_deg`,
+//! written by `opal gonio simulate` with the hemisphere layout) is fitted with the simulator's
+//! hemisphere layout. Default tier (~15 s).
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -120,4 +122,42 @@ fn malformed_bsdf_exits_2_naming_line_and_value() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("is also in"), "{err}");
+}
+
+#[test]
+fn fit_ndf_from_a_hemisphere_measurement() {
+    let d = tempfile::tempdir().unwrap();
+    let plate = d.path().join("plate.toml");
+    std::fs::write(
+        &plate,
+        "[plate]\nior = 1.49\n[plate.back]\ntype = \"rough\"\nndf = \"ggx\"\nalpha = 0.2\n\
+         [beam]\nincidences_deg = [0, 40]\n\
+         [detectors]\nlayout = \"hemisphere\"\npolar_step_deg = 5\nazimuth_step_deg = 30\nradius_deg = 2\n\
+         [run]\nphotons = 200000\nseed = 5\n",
+    )
+    .unwrap();
+    let csv = d.path().join("hemi.csv");
+    let o =
+        opal().args(["gonio", "simulate"]).arg(&plate).arg("-o").arg(&csv).arg("--quiet").output().unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::read_to_string(&csv).unwrap().lines().next().unwrap().contains("detector_azimuth_deg"));
+    let out = d.path().join("fit");
+    let o = opal()
+        .arg("fit-ndf")
+        .arg(&csv)
+        .args(["--family", "ggx", "--photons", "200000", "--detector-radius-deg", "2", "--no-render"])
+        .args(["--json", "--quiet", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let a = j["alpha"].as_f64().unwrap();
+    assert!((a / 0.2 - 1.0).abs() < 0.05, "alpha {a}");
+    // every measured (polar, azimuth) point is in the fitted curves, with its azimuth
+    let fitted = std::fs::read_to_string(out.join("fitted_curves.csv")).unwrap();
+    assert!(fitted.lines().next().unwrap().ends_with(",detector_azimuth_deg"));
+    let n_meas = std::fs::read_to_string(&csv).unwrap().lines().count();
+    assert_eq!(fitted.lines().count(), n_meas);
+    assert!(fitted.lines().skip(1).any(|l| l.ends_with(",90")));
 }
