@@ -7,6 +7,9 @@
 //! `detector_deg` is the signed angle of the detector in the plane of incidence (the
 //! conventions of `opal::gonio`); `value` is the intensity per unit incident power (1/sr);
 //! `value_stderr` its standard error. Blank lines and lines starting with `#` are skipped.
+//! Full-hemisphere measurements add the column `detector_azimuth_deg` (azimuth from the plane
+//! of incidence, wrapped into [0°, 360°)); `detector_deg` is then the polar angle (≥ 0) and the
+//! pole is one detector whatever its azimuth ([`Measured::hemisphere`]).
 //!
 //! Rejected (with the file, line and column in the message): a missing column, a
 //! non-numeric or non-finite cell, a side other than R/T, an incidence outside [0°, 90°), a
@@ -14,7 +17,10 @@
 //! (incidence, side, detector) point, a file without data, an incidence that has points on one
 //! side only while other incidences have both (an empty side), values ≤ 0 everywhere.
 //!
-//! Tests: `tests` below (every rejection and the reference files).
+//! [`Measured::from_rows`] builds curves from points of any reader (the `.BSDF` reader of
+//! [`crate::scatter::zemax`]); [`Measured::merge`] joins files of one sample.
+//!
+//! Tests: `tests` below (every rejection, the reference files, hemisphere columns, merging).
 
 use opal::Error;
 use opal::gonio::Side;

@@ -2,7 +2,9 @@
 //! goniophotometer curves (method A, inverse half).
 //!
 //! Model: the measured plate is simulated by [`opal::gonio::Gonio`] with the same beam,
-//! detectors and incidence angles as the measurement; the rough face carries an NDF
+//! detectors and incidence angles as the measurement (plane-of-incidence curves: the plane
+//! layout at the measured signed angles; full-hemisphere measurements: the hemisphere layout on
+//! the measured polar angles × azimuths, tested in `hemisphere_tests`); the rough face carries an NDF
 //! ([`Model`]): an analytic shape ([`Family`]: Beckmann = Gauss-like slopes, GGX = Cauchy-like
 //! slopes, Student-t = tail exponent γ between them, `Profile::StudentT`) of roughness α,
 //! optionally shifted (`D(θ) ∝ base(|θ − δ|)`, `Profile::Shifted`) and optionally hybrid (a
