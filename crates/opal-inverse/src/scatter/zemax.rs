@@ -286,10 +286,10 @@ pub fn write(t: &BsdfTable, comment: &str, precision: Precision) -> String {
     o
 }
 
-/// Reads a `.BSDF` file.
+/// Reads a `.BSDF` file (bytes that are not UTF-8, e.g. Latin-1 comments, become U+FFFD).
 pub fn read(path: &Path) -> opal::Result<BsdfTable> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    parse(&text, path)
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse(&String::from_utf8_lossy(&bytes), path)
 }
 
 /// Whether a file name looks like a Zemax `.BSDF` file (extension `bsdf`, any case).
@@ -320,12 +320,19 @@ impl<'a> Tokens<'a> {
             if line.trim_start().starts_with('#') {
                 continue;
             }
-            let mut off = 0;
-            for part in line.split(|c: char| c.is_whitespace()) {
-                if !part.is_empty() {
-                    toks.push(Tok { line: i + 1, col: line[..off].chars().count() + 1, text: part });
+            let mut start: Option<(usize, usize)> = None; // (byte, char column) of the token
+            for (col, (b, ch)) in line.char_indices().enumerate() {
+                match (ch.is_whitespace(), start) {
+                    (false, None) => start = Some((b, col + 1)),
+                    (true, Some((s0, c0))) => {
+                        toks.push(Tok { line: i + 1, col: c0, text: &line[s0..b] });
+                        start = None;
+                    }
+                    _ => {}
                 }
-                off += part.len() + 1;
+            }
+            if let Some((s0, c0)) = start {
+                toks.push(Tok { line: i + 1, col: c0, text: &line[s0..] });
             }
         }
         Tokens { toks, pos: 0, path, last_line }
@@ -406,6 +413,7 @@ fn angle_list(
 
 /// Parses `.BSDF` text (`path` only names the source in messages).
 pub fn parse(text: &str, path: &Path) -> opal::Result<BsdfTable> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut tk = Tokens::new(text, path);
     let mut source = String::new();
     let mut symmetry = None;

@@ -58,7 +58,7 @@ fn keywords_and_values_are_case_insensitive() {
         .replace("DataEnd", "dataend")
         .replace("\nMonochrome\n", "\nMONOCHROME\n")
         .replace("SpectralContent  Monochrome", "spectralcontent MonoChrome");
-    let a = parse(&odd, &p()).unwrap();
+    let a = parse(&format!("\u{feff}{odd}"), &p()).unwrap(); // with a byte-order mark
     let b = parse(SYM, &p()).unwrap();
     assert_eq!(a, b);
     // the spec's own spellings of the 4-D symmetry
@@ -206,6 +206,9 @@ fn malformed_files_are_refused_with_position() {
     // line and column of a bad value
     let e = err(&SYM.replace("20 7 2 0.2", "20 7 2 oops"));
     assert!(e.starts_with("t.BSDF:23:8:") && e.contains("\"oops\""), "{e}");
+    // non-ASCII whitespace and text: columns count characters
+    let e = err(&SYM.replace("20 7 2 0.2", "20\u{a0}7 2 é"));
+    assert!(e.starts_with("t.BSDF:23:8:") && e.contains("\"é\""), "{e}");
     // data before the angle lists
     let e = err("Symmetry PlaneSymmetrical\nScatterType BRDF\nMonochrome\nDataBegin\n1\nDataEnd\n");
     assert!(e.contains("t.BSDF:3:1") && e.contains("before the angle lists"), "{e}");
@@ -219,4 +222,17 @@ fn curves_need_rotation_zero_and_the_plane_of_incidence() {
     let t = parse(&SYM.replace("0 90 180", "10 90 180"), &p()).unwrap();
     let e = t.to_measured(&p()).unwrap_err().to_string();
     assert!(e.contains("no azimuth 0° row"), "{e}");
+}
+
+/// A file with Latin-1 bytes in a comment (instrument software) reads.
+#[test]
+fn latin1_comment_reads() {
+    let f = std::env::temp_dir().join(format!("opal_zemax_latin1_{}.bsdf", std::process::id()));
+    let mut bytes = b"# angle in \xb0\n".to_vec();
+    bytes.extend_from_slice(SYM.as_bytes());
+    std::fs::write(&f, bytes).unwrap();
+    assert!(is_zemax_path(&f));
+    let t = read(&f);
+    let _ = std::fs::remove_file(&f);
+    assert_eq!(t.unwrap(), parse(SYM, &p()).unwrap());
 }
