@@ -3,8 +3,10 @@
 //! Exit codes: 0 success, 1 a check failed (energy violated, fit above its bound),
 //! 2 usage / I-O / bad input. Errors print `error: {cause chain}`.
 
+mod assets;
 mod cmd;
 mod glb;
+mod plate;
 #[allow(dead_code)]
 mod plot;
 mod util;

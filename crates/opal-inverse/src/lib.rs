@@ -12,3 +12,4 @@ pub mod export;
 pub mod face_table;
 pub mod measured;
 pub mod ndf_fit;
+pub mod scatter;

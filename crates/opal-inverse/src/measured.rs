@@ -7,6 +7,9 @@
 //! `detector_deg` is the signed angle of the detector in the plane of incidence (the
 //! conventions of `opal::gonio`); `value` is the intensity per unit incident power (1/sr);
 //! `value_stderr` its standard error. Blank lines and lines starting with `#` are skipped.
+//! Full-hemisphere measurements add the column `detector_azimuth_deg` (azimuth from the plane
+//! of incidence, wrapped into [0°, 360°)); `detector_deg` is then the polar angle (≥ 0) and the
+//! pole is one detector whatever its azimuth ([`Measured::hemisphere`]).
 //!
 //! Rejected (with the file, line and column in the message): a missing column, a
 //! non-numeric or non-finite cell, a side other than R/T, an incidence outside [0°, 90°), a
@@ -14,7 +17,10 @@
 //! (incidence, side, detector) point, a file without data, an incidence that has points on one
 //! side only while other incidences have both (an empty side), values ≤ 0 everywhere.
 //!
-//! Tests: `tests` below (every rejection and the reference files).
+//! [`Measured::from_rows`] builds curves from points of any reader (the `.BSDF` reader of
+//! [`crate::scatter::zemax`]); [`Measured::merge`] joins files of one sample.
+//!
+//! Tests: `tests` below (every rejection, the reference files, hemisphere columns, merging).
 
 use opal::Error;
 use opal::gonio::Side;
@@ -28,8 +34,12 @@ pub struct Curve {
     pub incidence: f64,
     /// Side.
     pub side: Side,
-    /// Detector angles (radians), ascending.
+    /// Detector angles (radians), ascending: signed in the plane of incidence, or the polar
+    /// angle (≥ 0) of a hemisphere measurement.
     pub detector: Vec<f64>,
+    /// Detector azimuths (radians, [0, 2π), from the plane of incidence, 0 = the specular
+    /// side) of a hemisphere measurement; all 0 for plane-of-incidence curves.
+    pub azimuth: Vec<f64>,
     /// Values (1/sr).
     pub value: Vec<f64>,
     /// Standard errors (0 when the file has none).
@@ -52,6 +62,26 @@ pub struct Measured {
     pub curves: Vec<Curve>,
     /// Whether the file had a `value_stderr` column.
     pub has_stderr: bool,
+    /// Whether the detectors cover the hemisphere (polar + azimuth, column
+    /// `detector_azimuth_deg`) rather than the plane of incidence (signed angle).
+    pub hemisphere: bool,
+}
+
+/// One measured point, angles in degrees (the columns of the CSV format).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Row {
+    /// Incidence angle.
+    pub incidence_deg: f64,
+    /// Side.
+    pub side: Side,
+    /// Signed detector angle (plane of incidence) or polar angle (hemisphere).
+    pub detector_deg: f64,
+    /// Detector azimuth (hemisphere; 0 in the plane-of-incidence form).
+    pub azimuth_deg: f64,
+    /// Intensity per unit incident power (1/sr).
+    pub value: f64,
+    /// Standard error of `value` (0 when unknown).
+    pub stderr: f64,
 }
 
 fn parse_err(path: &Path, line: usize, col: usize, msg: impl Into<String>) -> Error {
@@ -88,8 +118,9 @@ impl Measured {
             })?;
         }
         let i_err = find("value_stderr");
-        let mut seen: HashMap<(i64, Side, i64), usize> = HashMap::new();
-        let mut rows: Vec<(f64, Side, f64, f64, f64)> = Vec::new();
+        let i_az = find("detector_azimuth_deg");
+        let mut seen: HashMap<(i64, Side, i64, i64), usize> = HashMap::new();
+        let mut rows: Vec<Row> = Vec::new();
         for (ln, line) in lines {
             let line_no = ln + 1;
             let cells: Vec<&str> = line.split(',').map(|s| s.trim().trim_matches('"')).collect();
@@ -145,6 +176,27 @@ impl Measured {
                 }
             };
             let det = num(idx[2], "detector_deg")?;
+            if i_az.is_some() && det < 0.0 {
+                return Err(parse_err(
+                    path,
+                    line_no,
+                    idx[2] + 1,
+                    format!(
+                        "row {line_no}: detector_deg is the polar angle with detector_azimuth_deg, must be in [0, 90), got {det}"
+                    ),
+                ));
+            }
+            let az = match i_az {
+                // one detector at the pole; azimuths wrapped into [0, 360)
+                Some(k) => {
+                    if det == 0.0 {
+                        num(k, "detector_azimuth_deg").map(|_| 0.0)?
+                    } else {
+                        num(k, "detector_azimuth_deg")?.rem_euclid(360.0)
+                    }
+                }
+                None => 0.0,
+            };
             if det.abs() >= 90.0 {
                 return Err(parse_err(
                     path,
@@ -169,38 +221,86 @@ impl Measured {
                 }
                 None => 0.0,
             };
-            let key = ((inc * 1e6).round() as i64, side, (det * 1e6).round() as i64);
+            let key =
+                ((inc * 1e6).round() as i64, side, (det * 1e6).round() as i64, (az * 1e6).round() as i64);
             if let Some(prev) = seen.insert(key, line_no) {
                 return Err(parse_err(
                     path,
                     line_no,
                     1,
                     format!(
-                        "row {line_no}: duplicated point (incidence {inc}°, side {}, detector {det}°), first on row {prev}",
-                        side.label()
+                        "row {line_no}: duplicated point (incidence {inc}°, side {}, detector {det}°{}), first on row {prev}",
+                        side.label(),
+                        if i_az.is_some() { format!(", azimuth {az}°") } else { String::new() }
                     ),
                 ));
             }
-            rows.push((inc, side, det, value, se));
+            rows.push(Row {
+                incidence_deg: inc,
+                side,
+                detector_deg: det,
+                azimuth_deg: az,
+                value,
+                stderr: se,
+            });
         }
         if rows.is_empty() {
             return Err(parse_err(path, hline + 1, 1, "no data rows"));
         }
-        if !rows.iter().any(|r| r.3 > 0.0) {
+        Self::from_rows(path, rows, i_err.is_some(), i_az.is_some())
+    }
+
+    /// Curves from points in any order (other readers, e.g. [`crate::scatter::zemax`]); the
+    /// checks after reading of [`Measured::parse`] apply (no data, duplicated point, values
+    /// ≤ 0 everywhere, empty side). `hemisphere`: the rows carry polar + azimuth angles.
+    pub fn from_rows(
+        path: &Path,
+        mut rows: Vec<Row>,
+        has_stderr: bool,
+        hemisphere: bool,
+    ) -> opal::Result<Self> {
+        if rows.is_empty() {
+            return Err(Error::invalid(format!("{}", path.display()), "no data points"));
+        }
+        rows.sort_by(|a, b| {
+            a.incidence_deg
+                .total_cmp(&b.incidence_deg)
+                .then((a.side == Side::T).cmp(&(b.side == Side::T)))
+                .then(a.detector_deg.total_cmp(&b.detector_deg))
+                .then(a.azimuth_deg.total_cmp(&b.azimuth_deg))
+        });
+        let key = |r: &Row| {
+            let q = |x: f64| (x * 1e6).round() as i64;
+            (q(r.incidence_deg), r.side, q(r.detector_deg), q(r.azimuth_deg))
+        };
+        for w in rows.windows(2) {
+            if key(&w[0]) == key(&w[1]) {
+                return Err(Error::invalid(
+                    format!("{}", path.display()),
+                    format!(
+                        "duplicated point (incidence {}°, side {}, detector {}°, azimuth {}°)",
+                        w[0].incidence_deg,
+                        w[0].side.label(),
+                        w[0].detector_deg,
+                        w[0].azimuth_deg
+                    ),
+                ));
+            }
+        }
+        if !rows.iter().any(|r| r.value > 0.0) {
             return Err(Error::invalid(
                 format!("{}: value", path.display()),
                 "every value is ≤ 0 (nothing was measured)",
             ));
         }
-        rows.sort_by(|a, b| {
-            a.0.total_cmp(&b.0).then((a.1 == Side::T).cmp(&(b.1 == Side::T))).then(a.2.total_cmp(&b.2))
-        });
         let mut curves: Vec<Curve> = Vec::new();
-        for (inc, side, det, v, se) in rows {
+        for r in rows {
+            let (inc, side, det, v, se) = (r.incidence_deg, r.side, r.detector_deg, r.value, r.stderr);
             let inc_r = inc.to_radians();
             match curves.last_mut() {
                 Some(c) if c.incidence == inc_r && c.side == side => {
                     c.detector.push(det.to_radians());
+                    c.azimuth.push(r.azimuth_deg.to_radians());
                     c.value.push(v);
                     c.stderr.push(se);
                 }
@@ -208,6 +308,7 @@ impl Measured {
                     incidence: inc_r,
                     side,
                     detector: vec![det.to_radians()],
+                    azimuth: vec![r.azimuth_deg.to_radians()],
                     value: vec![v],
                     stderr: vec![se],
                 }),
@@ -241,27 +342,83 @@ impl Measured {
                 ));
             }
         }
-        Ok(Measured { path: path.to_path_buf(), curves, has_stderr: i_err.is_some() })
+        Ok(Measured { path: path.to_path_buf(), curves, has_stderr, hemisphere })
     }
 
-    /// Curves from a plane-of-incidence simulation (synthetic measurements for round trips):
-    /// detectors with a zero value are kept (they carry no information but are valid).
+    /// Merges measurements of one sample read from several files (e.g. a BRDF and a BTDF
+    /// `.BSDF` file); a curve (incidence, side) present in two files is an error naming both.
+    /// The result is named `a + b + …` and has standard errors when every part has.
+    pub fn merge(parts: Vec<Measured>) -> opal::Result<Self> {
+        let name = parts.iter().map(|m| m.path.display().to_string()).collect::<Vec<_>>().join(" + ");
+        let mut rows = Vec::new();
+        let hemisphere = parts.iter().any(|m| m.hemisphere);
+        for (i, m) in parts.iter().enumerate() {
+            if m.hemisphere != hemisphere {
+                return Err(Error::invalid(
+                    format!("{}", m.path.display()),
+                    "plane-of-incidence curves cannot be merged with hemisphere measurements (detector_azimuth_deg)",
+                ));
+            }
+            for c in &m.curves {
+                for o in &parts[..i] {
+                    if o.curves.iter().any(|d| d.side == c.side && (d.incidence - c.incidence).abs() < 1e-9) {
+                        return Err(Error::invalid(
+                            format!("{}", m.path.display()),
+                            format!(
+                                "incidence {}° side {} is also in {} (each curve in one file only)",
+                                fmt(c.incidence.to_degrees()),
+                                c.side.label(),
+                                o.path.display()
+                            ),
+                        ));
+                    }
+                }
+                for k in 0..c.detector.len() {
+                    rows.push(Row {
+                        incidence_deg: c.incidence.to_degrees(),
+                        side: c.side,
+                        detector_deg: c.detector[k].to_degrees(),
+                        azimuth_deg: c.azimuth[k].to_degrees(),
+                        value: c.value[k],
+                        stderr: c.stderr[k],
+                    });
+                }
+            }
+        }
+        Self::from_rows(Path::new(&name), rows, parts.iter().all(|m| m.has_stderr), hemisphere)
+    }
+
+    /// Curves from a simulation (synthetic measurements for round trips; plane of incidence or
+    /// hemisphere layout): detectors with a zero value are kept (they carry no information but
+    /// are valid).
     pub fn from_gonio(gonio: &opal::gonio::Gonio, res: &opal::gonio::GonioResult, name: &str) -> Self {
         let dets = gonio.detectors().list();
         let mut curves = Vec::new();
         for r in &res.incidences {
             for side in [Side::R, Side::T] {
-                let mut c =
-                    Curve { incidence: r.incidence, side, detector: vec![], value: vec![], stderr: vec![] };
+                let mut c = Curve {
+                    incidence: r.incidence,
+                    side,
+                    detector: vec![],
+                    azimuth: vec![],
+                    value: vec![],
+                    stderr: vec![],
+                };
                 for (k, d) in dets.iter().enumerate().filter(|(_, d)| d.side == side) {
                     c.detector.push(d.angle_deg.to_radians());
+                    c.azimuth.push(d.azimuth_deg.to_radians());
                     c.value.push(r.value[k]);
                     c.stderr.push(r.value_stderr[k]);
                 }
                 curves.push(c);
             }
         }
-        Measured { path: PathBuf::from(name), curves, has_stderr: true }
+        Measured {
+            path: PathBuf::from(name),
+            curves,
+            has_stderr: true,
+            hemisphere: gonio.detectors().is_hemisphere(),
+        }
     }
 
     /// Distinct incidence angles (radians), ascending.
@@ -276,6 +433,22 @@ impl Measured {
         let mut v: Vec<f64> = self.curves.iter().flat_map(|c| c.detector.iter().cloned()).collect();
         v.sort_by(f64::total_cmp);
         v.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+        v
+    }
+
+    /// Distinct detector azimuths (radians), ascending (hemisphere measurements; the pole's
+    /// azimuth is left out).
+    pub fn detector_azimuths(&self) -> Vec<f64> {
+        let mut v: Vec<f64> = self
+            .curves
+            .iter()
+            .flat_map(|c| c.detector.iter().zip(&c.azimuth).filter(|(t, _)| **t != 0.0).map(|(_, a)| *a))
+            .collect();
+        v.sort_by(f64::total_cmp);
+        v.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+        if v.is_empty() {
+            v.push(0.0);
+        }
         v
     }
 
@@ -359,5 +532,31 @@ mod tests {
         assert_eq!(m.detector_angles().len(), 179);
         assert_eq!(m.curves.len(), 12);
         assert!(m.curves.iter().all(|c| c.detector.len() == 179));
+    }
+
+    /// Hemisphere measurements: `detector_azimuth_deg` makes `detector_deg` the polar angle
+    /// (≥ 0); azimuths wrap into [0, 360); the pole is one detector whatever its azimuth.
+    #[test]
+    fn hemisphere_columns() {
+        let p = Path::new("h.csv");
+        let h = "incidence_deg,side,detector_deg,detector_azimuth_deg,value\n";
+        let m = Measured::parse(&format!("{h}0,R,10,-90,1\n0,R,0,45,2\n0,R,10,90,3\n"), p).unwrap();
+        assert!(m.hemisphere);
+        let c = &m.curves[0];
+        let az: Vec<f64> = c.azimuth.iter().map(|a| a.to_degrees().round()).collect();
+        assert_eq!(az, vec![0.0, 90.0, 270.0]);
+        assert_eq!(c.value, vec![2.0, 3.0, 1.0]);
+        assert_eq!(m.detector_azimuths().len(), 2);
+        let e = Measured::parse(&format!("{h}0,R,-10,0,1\n"), p).unwrap_err().to_string();
+        assert!(e.contains("h.csv:2:3") && e.contains("polar angle"), "{e}");
+        let e = Measured::parse(&format!("{h}0,R,0,0,1\n0,R,0,30,1\n"), p).unwrap_err().to_string();
+        assert!(e.contains("duplicated point"), "{e}");
+        let e = Measured::parse(&format!("{h}0,R,10,370,1\n0,R,10,10,1\n"), p).unwrap_err().to_string();
+        assert!(e.contains("duplicated point"), "{e}");
+        // plane curves and hemisphere curves do not merge
+        let plane = Measured::parse("incidence_deg,side,detector_deg,value\n0,T,0,1\n", p).unwrap();
+        assert!(!plane.hemisphere && plane.curves[0].azimuth == vec![0.0]);
+        let e = Measured::merge(vec![plane, m]).unwrap_err().to_string();
+        assert!(e.contains("cannot be merged"), "{e}");
     }
 }

@@ -17,37 +17,9 @@ pub struct DemoArgs {
     pub spp: u32,
 }
 
-/// The reference Cornell box (Mitsuba 3 scene, meshes and back-wall texture), embedded.
-const CBOX_FILES: &[(&str, &[u8])] = &[
-    ("scene.xml", include_bytes!("../../../opal/tests/data/cbox/scene.xml")),
-    ("meshes/back_wall.obj", include_bytes!("../../../opal/tests/data/cbox/meshes/back_wall.obj")),
-    ("meshes/ceiling.obj", include_bytes!("../../../opal/tests/data/cbox/meshes/ceiling.obj")),
-    ("meshes/floor.obj", include_bytes!("../../../opal/tests/data/cbox/meshes/floor.obj")),
-    ("meshes/left_wall_red.obj", include_bytes!("../../../opal/tests/data/cbox/meshes/left_wall_red.obj")),
-    ("meshes/light.obj", include_bytes!("../../../opal/tests/data/cbox/meshes/light.obj")),
-    (
-        "meshes/right_wall_green.obj",
-        include_bytes!("../../../opal/tests/data/cbox/meshes/right_wall_green.obj"),
-    ),
-    ("meshes/short_box.obj", include_bytes!("../../../opal/tests/data/cbox/meshes/short_box.obj")),
-    ("meshes/tall_box.obj", include_bytes!("../../../opal/tests/data/cbox/meshes/tall_box.obj")),
-    (
-        "textures/backwall_albedo.exr",
-        include_bytes!("../../../opal/tests/data/cbox/textures/backwall_albedo.exr"),
-    ),
-];
-
-/// Writes the embedded Cornell box into `dir` (scene.xml, meshes/, textures/).
-pub fn write_cbox(dir: &Path) -> Result<PathBuf> {
-    for (name, bytes) in CBOX_FILES {
-        util::write_bytes_atomic(&dir.join(name), bytes)?;
-    }
-    Ok(dir.join("scene.xml"))
-}
-
 fn demo_render(out: &Path, spp: u32) -> Result<serde_json::Value> {
     let dir = out.join("render");
-    let scene_path = write_cbox(&dir.join("cbox"))?;
+    let scene_path = crate::assets::write_cbox(&dir.join("cbox"))?;
     let scene = super::render::load_scene(&scene_path, &[])?;
     let settings = opal::integrator::path::PathSettings {
         spp,

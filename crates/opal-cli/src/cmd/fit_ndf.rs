@@ -3,27 +3,31 @@
 //! [`opal_inverse::ndf_fit`], [`opal_inverse::export`]; formats in `docs/formats.md`,
 //! usage in `docs/fit-ndf.md`.
 
-use super::gonio::{PlateFile, SimulateArgs, build_config, read_plate_file};
+use crate::plate::{PlateFile, PlateOverrides, build_config, parse_scattering, read_plate_file};
 use crate::plot::{LinePlot, Series, save_panels};
 use crate::util::{ensure_not_input, write_atomic, write_bytes_atomic};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use opal::bsdf::microfacet::Ndfs;
-use opal::gonio::{Face, Scattering, Side};
-use opal_inverse::export::{LightSide, bsdf_csv, face_bsdf, ndf_table, zemax_bsdf};
+use opal::gonio::{Face, Side};
+use opal_inverse::export::{FaceModel, LightSide, bsdf_csv, ndf_table, zemax_bsdf};
 use opal_inverse::measured::Measured;
 use opal_inverse::ndf_fit::{
     Candidate, Evaluation, Family, FitOn, FitOptions, FitReport, FitSetup, Model, Problem, ScaleFit,
     ScaleMode, ScaleSetup, fit,
 };
+use opal_inverse::scatter::zemax;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `opal fit-ndf`.
 #[derive(Args, Debug, Default, Clone)]
 pub struct FitNdfArgs {
-    /// Measured curves (CSV: incidence_deg,side,detector_deg,value[,value_stderr]).
-    pub measured: PathBuf,
+    /// Measured curves: CSV (incidence_deg,side,detector_deg,value[,value_stderr]) or Zemax
+    /// tabular .BSDF (by extension; BRDF → side R, BTDF → side T); several files are merged
+    /// (e.g. sample_brdf.BSDF sample_btdf.BSDF).
+    #[arg(required = true)]
+    pub measured: Vec<PathBuf>,
     /// Sample, beam and detectors (PLATE.toml of `opal gonio simulate`; its NDF is ignored).
     #[arg(long)]
     pub plate: Option<PathBuf>,
@@ -115,14 +119,26 @@ pub struct FitOutcome {
     pub report: FitReport,
 }
 
-fn parse_scattering(s: &str) -> Result<Scattering> {
-    Ok(match s {
-        "single" => Scattering::Single,
-        "single-mitsuba" => Scattering::SingleMitsuba,
-        "single-hc" => Scattering::SingleHeightCorrelated,
-        "multiple" => Scattering::Multiple,
-        _ => bail!("--scattering: must be single, single-mitsuba, single-hc or multiple, got {s:?}"),
-    })
+/// Reads the measured files (CSV or Zemax `.BSDF` by extension) and merges them.
+pub fn read_measured(paths: &[PathBuf]) -> Result<Measured> {
+    let mut parts = Vec::new();
+    for p in paths {
+        let m = if zemax::is_zemax_path(p) {
+            zemax::read(p).and_then(|t| t.to_measured(p))
+        } else {
+            Measured::read(p)
+        };
+        parts.push(m.map_err(|e| anyhow!("{e}"))?);
+    }
+    match parts.len() {
+        0 => bail!("no measured file given"),
+        1 => Ok(parts.pop().expect("one part")),
+        _ => Measured::merge(parts).map_err(|e| anyhow!("{e}")),
+    }
+}
+
+fn measured_names(a: &FitNdfArgs) -> String {
+    a.measured.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ")
 }
 
 /// Builds the fitting problem from the arguments (bad input → error, exit 2).
@@ -144,7 +160,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         "both" => FitOn::Both,
         s => bail!("--fit-on: must be T, R or both, got {s:?}"),
     };
-    let scattering = parse_scattering(&a.scattering)?;
+    let scattering = parse_scattering(&a.scattering, "--scattering")?;
     if !(a.floor.is_finite() && (0.0..1.0).contains(&a.floor)) {
         bail!("--floor: must be in [0, 1), got {}", a.floor);
     }
@@ -166,14 +182,13 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
     if !(rel_error.is_finite() && (0.0..1.0).contains(&rel_error)) {
         bail!("--rel-error: must be in [0, 1) (a relative standard error, e.g. 0.02), got {rel_error}");
     }
-    let measured = Measured::read(&a.measured).map_err(|e| anyhow!("{e}"))?;
+    let measured = read_measured(&a.measured)?;
     let file = match &a.plate {
         Some(p) => read_plate_file(p)?,
         None => PlateFile::default(),
     };
     let photons = a.photons.or(file.run.photons).unwrap_or(200_000);
-    let sim = SimulateArgs {
-        output: PathBuf::new(),
+    let sim = PlateOverrides {
         photons: Some(photons),
         seed: a.seed,
         ior: a.ior,
@@ -184,7 +199,6 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         // placeholder NDF for the rough face (replaced at every evaluation)
         ndf: Some("ggx:0.1".into()),
         scattering: Some(a.scattering.clone()),
-        ..Default::default()
     };
     let cfg = build_config(&file, &sim)?;
     let rf = matches!(cfg.plate.front, Face::Rough { .. });
@@ -297,7 +311,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     }
     write_bytes_atomic(&out.join("ndf.csv"), t.as_bytes())?;
     // BSDF of both sides
-    let bsdf = face_bsdf(ndf.clone(), s.plate.ior).map_err(|e| anyhow!("{e}"))?;
+    let bsdf = FaceModel::new(ndf.clone(), s.plate.ior, s.scattering).map_err(|e| anyhow!("{e}"))?;
     let aois: Vec<f64> = (0..18).map(|i| i as f64 * 5.0).collect();
     let (table, tis) = bsdf_csv(&bsdf, &aois, 2.0, 10.0);
     write_bytes_atomic(&out.join("bsdf.csv"), table.as_bytes())?;
@@ -305,9 +319,11 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     let az: Vec<f64> = (0..=18).map(|i| i as f64 * 10.0).collect();
     let rad: Vec<f64> = (0..=45).map(|i| i as f64 * 2.0).collect();
     let comment = format!(
-        "rough face, {}, n = {}, single scattering, power BSDF (1/sr)",
+        "rough face, {}, n = {}, {} ({}), power BSDF (1/sr)",
         best.model.describe(),
-        s.plate.ior
+        s.plate.ior,
+        bsdf.describe(),
+        a.scattering
     );
     for side in [LightSide::AirToMaterial, LightSide::MaterialToAir] {
         for (tr, kind) in [(false, "brdf"), (true, "btdf")] {
@@ -320,7 +336,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "# fitted by opal fit-ndf from {}\n[plate]\nior = {}\nthickness_mm = {}\nentry = \"{}\"\n\
          [plate.front]\ntype = \"polished\"\n[plate.back]\ntype = \"rough\"\n{}scattering = \"{}\"\n\
          [beam]\ndivergence_deg = {}\n[detectors]\nradius_deg = {}\n",
-        a.measured.display(),
+        measured_names(a),
         s.plate.ior,
         s.plate.thickness_mm,
         if s.rough_front { "rough" } else { "smooth" },
@@ -393,7 +409,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "seconds": seconds,
         "candidates": report.candidates.iter().map(candidate_json).collect::<Vec<_>>(),
         "selection": decisions,
-        "measured": a.measured.display().to_string(),
+        "measured": measured_names(a),
         "face": face,
     });
     write_bytes_atomic(&out.join("fit.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
@@ -426,11 +442,13 @@ fn scale_json(p: &Problem, f: &ScaleFit) -> serde_json::Value {
 fn write_curves_csv(path: &Path, p: &Problem, ev: &Evaluation) -> Result<()> {
     write_atomic(path, |f| {
         let mut w = std::io::BufWriter::new(f);
-        writeln!(w, "incidence_deg,side,detector_deg,measured,measured_stderr,fitted,fitted_stderr")?;
+        let hemi = p.measured.hemisphere;
+        write!(w, "incidence_deg,side,detector_deg,measured,measured_stderr,fitted,fitted_stderr")?;
+        writeln!(w, "{}", if hemi { ",detector_azimuth_deg" } else { "" })?;
         for (ci, c) in p.measured.curves.iter().enumerate() {
             let r = &ev.result.incidences[p.incidence_index(ci)];
             for (k, &d) in p.detector_indices(ci).iter().enumerate() {
-                writeln!(
+                write!(
                     w,
                     "{},{},{},{:.8e},{:.8e},{:.8e},{:.8e}",
                     (c.incidence.to_degrees() * 1e6).round() / 1e6,
@@ -441,11 +459,38 @@ fn write_curves_csv(path: &Path, p: &Problem, ev: &Evaluation) -> Result<()> {
                     r.value[d],
                     r.value_stderr[d]
                 )?;
+                if hemi {
+                    write!(w, ",{}", (c.azimuth[k].to_degrees() * 1e6).round() / 1e6)?;
+                }
+                writeln!(w)?;
             }
         }
         w.flush()?;
         Ok(())
     })
+}
+
+/// The points of curve `c` that the plots show, as (index, signed angle in degrees): all of a
+/// plane-of-incidence curve; of a hemisphere measurement those in the plane of incidence
+/// (azimuth 0 → +θ, 180° → −θ).
+fn plot_points(p: &Problem, c: &opal_inverse::measured::Curve) -> Vec<(usize, f64)> {
+    if !p.measured.hemisphere {
+        return (0..c.detector.len()).map(|k| (k, c.detector[k].to_degrees())).collect();
+    }
+    let mut v: Vec<(usize, f64)> = (0..c.detector.len())
+        .filter_map(|k| {
+            let (t, a) = (c.detector[k].to_degrees(), c.azimuth[k].to_degrees());
+            if t == 0.0 || a.abs() < 1e-6 {
+                Some((k, t))
+            } else if (a - 180.0).abs() < 1e-6 {
+                Some((k, -t))
+            } else {
+                None
+            }
+        })
+        .collect();
+    v.sort_by(|a, b| a.1.total_cmp(&b.1));
+    v
 }
 
 fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<()> {
@@ -461,15 +506,16 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
         for (ci, c) in p.measured.curves.iter().enumerate().filter(|(_, c)| c.side == side) {
             let color = incs.iter().position(|&t| t == c.incidence).unwrap_or(0);
             let r = &ev.result.incidences[p.incidence_index(ci)];
-            let deg = |k: usize| c.detector[k].to_degrees();
+            let ks = plot_points(p, c);
             let label = format!("{}°", (c.incidence.to_degrees() * 100.0).round() / 100.0);
-            let meas: Vec<(f64, f64)> = (0..c.value.len()).map(|k| (deg(k), c.value[k])).collect();
+            let meas: Vec<(f64, f64)> = ks.iter().map(|&(k, x)| (x, c.value[k])).collect();
             let idx = p.detector_indices(ci);
-            let fit: Vec<(f64, f64)> = (0..c.value.len()).map(|k| (deg(k), r.value[idx[k]])).collect();
+            let fit: Vec<(f64, f64)> = ks.iter().map(|&(k, x)| (x, r.value[idx[k]])).collect();
             let floor = p.setup.floor_rel * c.max();
-            let rel: Vec<(f64, f64)> = (0..c.value.len())
-                .filter(|&k| c.value[k] > 0.0 && c.value[k] >= floor)
-                .map(|k| (deg(k), (r.value[idx[k]] - c.value[k]) / c.value[k]))
+            let rel: Vec<(f64, f64)> = ks
+                .iter()
+                .filter(|&&(k, _)| c.value[k] > 0.0 && c.value[k] >= floor)
+                .map(|&(k, x)| (x, (r.value[idx[k]] - c.value[k]) / c.value[k]))
                 .collect();
             series.push(Series { name: format!("{label} measured"), points: meas, color, dashed: false });
             series.push(Series { name: format!("{label} fitted"), points: fit, color, dashed: true });
@@ -500,7 +546,7 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
 /// `opal fit-ndf …`: exit 0 on a converged fit, 1 when an optimiser did not converge (the
 /// outputs are still written), 2 on bad input.
 pub fn run(a: FitNdfArgs) -> Result<i32> {
-    let mut inputs: Vec<&Path> = vec![&a.measured];
+    let mut inputs: Vec<&Path> = a.measured.iter().map(PathBuf::as_path).collect();
     if let Some(p) = &a.plate {
         inputs.push(p);
     }
@@ -546,9 +592,9 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
     let dir = out_dir.join("fit_ndf");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let csv = dir.join("measured.csv");
-    write_bytes_atomic(&csv, DEMO_CSV.as_bytes())?;
+    write_bytes_atomic(&csv, crate::assets::FIT_NDF_DEMO_CSV.as_bytes())?;
     let a = FitNdfArgs {
-        measured: csv,
+        measured: vec![csv],
         output: dir.clone(),
         family: "auto".into(),
         scattering: "single".into(),
@@ -563,8 +609,6 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
     let o = fit_and_write(&a, &dir)?;
     Ok(o.json)
 }
-
-static DEMO_CSV: &str = include_str!("../../data/fit_ndf_demo.csv");
 
 #[cfg(test)]
 mod tests {
@@ -597,7 +641,7 @@ mod tests {
             );
             let p = d.path().join(format!("p{i}.toml"));
             std::fs::write(&p, &text).unwrap();
-            let cfg = build_config(&read_plate_file(&p).unwrap(), &SimulateArgs::default()).unwrap();
+            let cfg = build_config(&read_plate_file(&p).unwrap(), &PlateOverrides::default()).unwrap();
             let Face::Rough { ndf: back, .. } = cfg.plate.back else { panic!("rough back") };
             for deg in [0.0f64, 2.0, 5.0, 9.0, 15.0, 30.0] {
                 let t = deg.to_radians();

@@ -2,7 +2,9 @@
 //! goniophotometer curves (method A, inverse half).
 //!
 //! Model: the measured plate is simulated by [`opal::gonio::Gonio`] with the same beam,
-//! detectors and incidence angles as the measurement; the rough face carries an NDF
+//! detectors and incidence angles as the measurement (plane-of-incidence curves: the plane
+//! layout at the measured signed angles; full-hemisphere measurements: the hemisphere layout on
+//! the measured polar angles × azimuths, tested in `hemisphere_tests`); the rough face carries an NDF
 //! ([`Model`]): an analytic shape ([`Family`]: Beckmann = Gauss-like slopes, GGX = Cauchy-like
 //! slopes, Student-t = tail exponent γ between them, `Profile::StudentT`) of roughness α,
 //! optionally shifted (`D(θ) ∝ base(|θ − δ|)`, `Profile::Shifted`) and optionally hybrid (a
@@ -209,6 +211,19 @@ pub struct Evaluation {
     pub result: GonioResult,
 }
 
+/// Index of the hemisphere detector at polar `theta`, azimuth `phi` (radians) on `side`.
+fn hemisphere_index(gonio: &Gonio, side: Side, theta: f64, phi: f64) -> usize {
+    let (t, p) = (theta.to_degrees(), phi.to_degrees());
+    gonio
+        .detectors()
+        .list()
+        .iter()
+        .position(|d| {
+            d.side == side && (d.angle_deg - t).abs() < 1e-6 && (t == 0.0 || (d.azimuth_deg - p).abs() < 1e-6)
+        })
+        .expect("every measured (polar, azimuth) is a detector of the grid built from them")
+}
+
 impl Problem {
     /// Builds the simulator for the measurement's incidences and detector angles; folds
     /// `setup.rel_error` into the measured standard errors (`measured.curves[].stderr`).
@@ -263,11 +278,17 @@ impl Problem {
         }
         let incidences = measured.incidences();
         let angles = measured.detector_angles();
+        let grid = if measured.hemisphere {
+            // the simulator's hemisphere layout on the measured polar × azimuth values
+            DetectorGrid::Hemisphere { polar: angles.clone(), azimuth: measured.detector_azimuths() }
+        } else {
+            DetectorGrid::PlaneOfIncidence { angles: angles.clone() }
+        };
         let gsetup = GonioSetup {
             beam: setup.beam.clone(),
             incidences: incidences.clone(),
             detectors: DetectorLayout {
-                grid: DetectorGrid::PlaneOfIncidence { angles: angles.clone() },
+                grid,
                 radius: setup.detector_radius,
                 distance_mm: setup.detector_distance_mm,
             },
@@ -289,11 +310,15 @@ impl Problem {
             let floor = setup.floor_rel * c.max();
             let mut idx = Vec::new();
             for (k, &a) in c.detector.iter().enumerate() {
-                let j = angles.iter().position(|&x| (x - a).abs() < 1e-9).expect("angle listed");
-                idx.push(off + j);
+                let det = if measured.hemisphere {
+                    hemisphere_index(&gonio, c.side, a, c.azimuth[k])
+                } else {
+                    off + angles.iter().position(|&x| (x - a).abs() < 1e-9).expect("angle listed")
+                };
+                idx.push(det);
                 let m = c.value[k];
                 if setup.fit_on.uses(c.side) && m > 0.0 && m >= floor {
-                    points.push(Point { inc, det: off + j, m, sm: c.stderr[k], curve, group: None });
+                    points.push(Point { inc, det, m, sm: c.stderr[k], curve, group: None });
                 }
             }
             all.push(idx);
@@ -541,5 +566,7 @@ pub fn check_seed(seed: u64) -> u64 {
     seed.wrapping_add(0x9E37_79B9)
 }
 
+#[cfg(test)]
+mod hemisphere_tests;
 #[cfg(test)]
 mod tests;

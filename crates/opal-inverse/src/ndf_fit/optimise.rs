@@ -61,27 +61,22 @@ impl Problem {
     /// from the values `v` of curve `ci`'s detectors.
     fn lobe_hwhm(&self, ci: usize, v: &[f64]) -> Option<f64> {
         let c = &self.measured.curves[ci];
-        let (ipk, &vmax) = v.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
-        if vmax <= 0.0 {
-            return None;
+        if !self.measured.hemisphere {
+            return hwhm(&c.detector, v);
         }
-        let half = 0.5 * vmax;
-        let mut widths = Vec::new();
-        for dir in [-1i64, 1] {
-            let mut k = ipk as i64;
-            while k + dir >= 0 && ((k + dir) as usize) < v.len() {
-                let k2 = (k + dir) as usize;
-                if v[k2] < half {
-                    let (a0, a1) = (c.detector[k as usize], c.detector[k2]);
-                    let (v0, v1) = (v[k as usize], v[k2]);
-                    let f = (v0 - half) / (v0 - v1);
-                    widths.push((a0 + f * (a1 - a0) - c.detector[ipk]).abs());
-                    break;
-                }
-                k += dir;
+        // hemisphere: the plane-of-incidence detectors (azimuth 0 → +θ, 180° → −θ)
+        let mut inplane: Vec<(f64, f64)> = Vec::new();
+        for (k, (&t, &a)) in c.detector.iter().zip(&c.azimuth).enumerate() {
+            let a = a.to_degrees();
+            if t == 0.0 || a.abs() < 1e-6 {
+                inplane.push((t, v[k]));
+            } else if (a - 180.0).abs() < 1e-6 {
+                inplane.push((-t, v[k]));
             }
         }
-        if widths.is_empty() { None } else { Some(widths.iter().sum::<f64>() / widths.len() as f64) }
+        inplane.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let (angles, vals): (Vec<f64>, Vec<f64>) = inplane.into_iter().unzip();
+        hwhm(&angles, &vals)
     }
 
     fn initial_curve(&self) -> Option<usize> {
@@ -358,4 +353,30 @@ pub fn fit_families(problem: &Problem, families: &[Family]) -> opal::Result<Vec<
     }
     fits.sort_by(|a, b| a.objective.total_cmp(&b.objective));
     Ok(fits)
+}
+
+/// Half width at half maximum (radians) of the lobe with values `v` at ascending signed
+/// angles `angles`.
+fn hwhm(angles: &[f64], v: &[f64]) -> Option<f64> {
+    let (ipk, &vmax) = v.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
+    if vmax <= 0.0 {
+        return None;
+    }
+    let half = 0.5 * vmax;
+    let mut widths = Vec::new();
+    for dir in [-1i64, 1] {
+        let mut k = ipk as i64;
+        while k + dir >= 0 && ((k + dir) as usize) < v.len() {
+            let k2 = (k + dir) as usize;
+            if v[k2] < half {
+                let (a0, a1) = (angles[k as usize], angles[k2]);
+                let (v0, v1) = (v[k as usize], v[k2]);
+                let f = (v0 - half) / (v0 - v1);
+                widths.push((a0 + f * (a1 - a0) - angles[ipk]).abs());
+                break;
+            }
+            k += dir;
+        }
+    }
+    if widths.is_empty() { None } else { Some(widths.iter().sum::<f64>() / widths.len() as f64) }
 }

@@ -580,7 +580,7 @@ pub fn run(a: DelightArgs) -> Result<i32> {
 /// albedos, then de-lights them (small settings, well under 30 s on 2 cores).
 pub fn demo(out: &Path) -> Result<serde_json::Value> {
     let dir = out.join("delight");
-    let scene_path = super::demo::write_cbox(&dir.join("cbox"))?;
+    let scene_path = crate::assets::write_cbox(&dir.join("cbox"))?;
     let mut desc = opal::scene::load::load_mitsuba_xml(&scene_path, &[])?;
     let res = 48;
     for s in &mut desc.sensors {
