@@ -30,10 +30,14 @@
 //!    gradient step `Ei ← max(0, Ei + α_k Kd/π e)`, `α_k = α₀/(1+k)`; `Kd` is recomputed with
 //!    the [0, 1] correction; stop when the max error is below the tolerance or at the limit.
 //!
-//! Files: settings in `settings.rs`, results in `result.rs`; [`delight`] and its steps in
-//! `pipeline.rs`, the direct irradiance in `direct.rs`, luminance maps and view/region helpers
-//! in `observe.rs`, stage clocks in `timing.rs`; shared helpers (luminance, albedo image,
-//! recovered scene) here.
+//! Files: settings in `settings.rs`, results in `result.rs`; [`delight`] in `pipeline.rs` runs
+//! the named stages of `stages/` in order: `unwrap.rs` (selection, atlases), `direct.rs` (step
+//! 4), `luminance.rs` (steps 2–3, gains), `iterate.rs` (step 6), `outputs.rs` (debug dump,
+//! result); the albedo update of step 5 in `albedo.rs`, the in-chart smoothing in `smooth.rs`,
+//! the direct-irradiance estimator in `direct.rs`, luminance maps and view/region helpers in
+//! `observe.rs`, stage clocks in `timing.rs`; shared helpers (luminance, albedo image,
+//! recovered scene) here. Diagnostics are switched by [`DebugSettings`] and
+//! [`superres::SrDiagnostics`] (never by environment variables).
 //!
 //! Tests: unit tests of the parts in their modules; `crates/opal-inverse/tests/delight.rs`
 //! (round trip on a small Cornell box rendered by Opal at known albedos; the independent
@@ -42,6 +46,7 @@
 // Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
 #![allow(clippy::needless_range_loop)]
 
+mod albedo;
 pub mod atlas;
 mod direct;
 pub mod gains;
@@ -50,6 +55,8 @@ mod observe;
 mod pipeline;
 mod result;
 mod settings;
+mod smooth;
+mod stages;
 pub mod superres;
 mod timing;
 pub mod views;
@@ -57,9 +64,10 @@ pub mod views;
 pub use direct::{MAX_LIGHTS_PER_TEXEL, PENUMBRA_DILATION, direct_irradiance};
 pub use gains::{ViewGain, ViewGainMode, ViewGainSettings, ViewGains, apply_view_gains};
 pub use observe::{RegionStats, luminance_map, object_masks, pixel_ray, region_stats};
-pub use pipeline::{delight, reached_texels, smooth_in_charts, smooth_in_charts_masked};
+pub use pipeline::delight;
 pub use result::{DelightResult, IterationStats, ObjectResult};
 pub use settings::{DebugSettings, DelightSettings, UpdateRule};
+pub use smooth::{reached_texels, smooth_in_charts, smooth_in_charts_masked};
 pub use timing::{StageClock, cpu_seconds};
 
 use opal::image::Image;

@@ -89,6 +89,45 @@ pub struct DelightArgs {
     /// Print report.json on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Error-analysis outputs (all off by default; no effect on the results).
+    #[command(flatten)]
+    pub diagnostics: DiagnosticArgs,
+}
+
+/// Error-analysis switches of `opal delight` (used by `bench/scripts/delight_psnr_budget.py`);
+/// they map to `opal_inverse::delight::DebugSettings` and
+/// `opal_inverse::delight::superres::SrDiagnostics`.
+#[derive(Args, Debug, Clone, Default)]
+#[command(next_help_heading = "Diagnostics (error analysis)")]
+pub struct DiagnosticArgs {
+    /// Log per object and iteration the mean observed L, Ed, Ei, Kd and the clamped texels.
+    #[arg(long)]
+    pub debug_log: bool,
+    /// Write per object the final luminance, observed mask, Ed, Ei and albedo maps as EXR
+    /// (`<id>_final_<what>.exr`) into this directory.
+    #[arg(long, value_name = "DIR")]
+    pub debug_dump: Option<PathBuf>,
+    /// Irradiance map (EXR on the atlas grid, e.g. the true one) used as the shading of the
+    /// super-resolution instead of the estimate.
+    #[arg(long, value_name = "EXR")]
+    pub sr_shading: Option<PathBuf>,
+    /// Radiance map (EXR on the atlas grid) whose super-resolution operator residual against each
+    /// photo is printed (with `--sr-residual-dir`).
+    #[arg(long, value_name = "EXR")]
+    pub sr_truth: Option<PathBuf>,
+    /// Directory of the per-view residual images of `--sr-truth`.
+    #[arg(long, value_name = "DIR")]
+    pub sr_residual_dir: Option<PathBuf>,
+    /// Replace the photos by `--sr-truth` through the operator plus noise: `stderr`,
+    /// `stderrcorr`, a relative level such as `0.02`, `shuffle`, `relshuffle`, `clipK`.
+    #[arg(long, value_name = "MODE")]
+    pub sr_synth: Option<String>,
+    /// Sub-pixel rays per axis of the synthetic photos of `--sr-synth` (0 = those of the solve).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub sr_synth_subsamples: u32,
+    /// Print the super-resolution residual every 10 steps.
+    #[arg(long)]
+    pub sr_trace: bool,
 }
 
 fn exr(path: &Path, img: &Image) -> Result<()> {
@@ -212,7 +251,7 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     let superres = match a.luminance.as_str() {
         "superres" => {
             let mut sr = opal_inverse::delight::superres::SrSettings {
-                diagnostics: sr_diagnostics_from_env(),
+                diagnostics: sr_diagnostics(&a.diagnostics),
                 ..Default::default()
             };
             if let Some(l) = a.tv_lambda {
@@ -252,7 +291,7 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         update,
         superres,
         view_gains: ViewGainSettings { mode, warn_ratio: a.gain_warn_ratio },
-        debug: debug_from_env(),
+        debug: debug_settings(&a.diagnostics),
         ..Default::default()
     };
     let r = delight(&desc, &views, &settings, log)?;
@@ -264,28 +303,25 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     write_outputs(a, &desc, &views, &r, &vwarn, log)
 }
 
-/// Debug outputs of the de-lighting from the environment (error-analysis hooks of
-/// `bench/scripts/delight_psnr_budget.py`): `OPAL_DELIGHT_DEBUG` (set: per-object means per
-/// iteration in the log), `OPAL_DELIGHT_DUMP=DIR` (final maps as EXR), `OPAL_SR_SHADING=E.exr`
-/// (given shading of the super-resolution).
-fn debug_from_env() -> opal_inverse::delight::DebugSettings {
+/// Debug outputs of the de-lighting from the diagnostic switches (error-analysis hooks of
+/// `bench/scripts/delight_psnr_budget.py`).
+fn debug_settings(d: &DiagnosticArgs) -> opal_inverse::delight::DebugSettings {
     opal_inverse::delight::DebugSettings {
-        print: std::env::var_os("OPAL_DELIGHT_DEBUG").is_some(),
-        dump_dir: std::env::var_os("OPAL_DELIGHT_DUMP").map(PathBuf::from),
-        shading: std::env::var_os("OPAL_SR_SHADING").map(PathBuf::from),
+        print: d.debug_log,
+        dump_dir: d.debug_dump.clone(),
+        shading: d.sr_shading.clone(),
     }
 }
 
-/// Error-analysis hooks of the super-resolution from the environment: `OPAL_SR_TRUTH=B.exr`
-/// with `OPAL_SR_DIAG=DIR`, `OPAL_SR_SYNTH=MODE`, `OPAL_SR_SYNTH_SS=N`, `OPAL_SR_TRACE` (see
+/// Error-analysis hooks of the super-resolution from the diagnostic switches (see
 /// `opal_inverse::delight::superres::SrDiagnostics`).
-fn sr_diagnostics_from_env() -> opal_inverse::delight::superres::SrDiagnostics {
+fn sr_diagnostics(d: &DiagnosticArgs) -> opal_inverse::delight::superres::SrDiagnostics {
     opal_inverse::delight::superres::SrDiagnostics {
-        truth: std::env::var_os("OPAL_SR_TRUTH").map(PathBuf::from),
-        residual_dir: std::env::var_os("OPAL_SR_DIAG").map(PathBuf::from),
-        synth: std::env::var("OPAL_SR_SYNTH").ok(),
-        synth_subsamples: std::env::var("OPAL_SR_SYNTH_SS").ok().and_then(|x| x.parse().ok()).unwrap_or(0),
-        trace: std::env::var_os("OPAL_SR_TRACE").is_some(),
+        truth: d.sr_truth.clone(),
+        residual_dir: d.sr_residual_dir.clone(),
+        synth: d.sr_synth.clone(),
+        synth_subsamples: d.sr_synth_subsamples,
+        trace: d.sr_trace,
     }
 }
 
@@ -623,6 +659,7 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         seed: 0,
         threads: None,
         json: false,
+        diagnostics: DiagnosticArgs::default(),
     };
     let report = run_pipeline(&args, &|l| eprintln!("demo delight: {l}"))?;
     eprintln!("demo: de-lighting report -> {}", args.output.join("report.html").display());
