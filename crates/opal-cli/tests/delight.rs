@@ -125,6 +125,11 @@ fn tiny_run_writes_everything_and_scene_loads() {
     let obj_keys = [
         "id",
         "resolution",
+        "resolution_rule",
+        "resolution_from_cameras_unclamped",
+        "pixel_density_best_seen",
+        "texel_density_best_seen",
+        "seen_area_fraction",
         "charts",
         "kept_uvs",
         "seen_fraction",

@@ -3,8 +3,8 @@
 //! emitters and cameras.
 //!
 //! Pipeline ([`delight`]):
-//! 1. atlas per object ([`atlas`]: own UVs when usable, else planar charts + shelf packing),
-//!    resolution from [`atlas::auto_resolution`] unless given;
+//! 1. atlas per object ([`atlas`]: own UVs when usable, else new charts), resolution from the
+//!    cameras' pixel footprints ([`footprint`]) unless given or the object's own texture size;
 //! 2. (unless [`ViewGainMode::Fixed`]) per-view gains (exposure, white balance) from the
 //!    overlap of the views ([`gains`]); the views are divided by them before everything below;
 //!    luminance map `L`: every covered texel is projected into every view; a view counts when
@@ -49,6 +49,7 @@
 mod albedo;
 pub mod atlas;
 mod direct;
+pub mod footprint;
 pub mod gains;
 pub mod inpaint;
 mod observe;

@@ -4,6 +4,7 @@
 //! Tests: `tests/delight.rs` (round trip through [`ObjectResult::mean_kd_observed`]).
 
 use super::atlas::{Atlas, NO_TRI};
+use super::footprint::ResolutionChoice;
 use super::gains::ViewGains;
 use super::to_image;
 use opal::image::Image;
@@ -17,6 +18,9 @@ pub struct ObjectResult {
     pub id: String,
     /// Atlas (mesh with UVs, texel → surface).
     pub atlas: Atlas,
+    /// How the atlas resolution was chosen, the pixel and texel densities of the best-seen part
+    /// and the seen fraction of the surface.
+    pub resolution: ResolutionChoice,
     /// Observed luminance per texel (inpainted in holes).
     pub l: Vec<[f32; 3]>,
     /// Whether a texel was seen by at least one view.

@@ -30,8 +30,12 @@ pub struct DelightSettings {
     /// Light paths per light-tracing pass.
     pub light_paths: u64,
     /// Texture resolution (square); `None` = the size of the object's existing square bitmap
-    /// texture when its UVs are kept, else adaptive (256–4096).
+    /// texture when its UVs are kept, else from the cameras' pixel footprints
+    /// ([`footprint`](super::footprint), 256…`max_resolution`).
     pub resolution: Option<usize>,
+    /// Upper clamp of the resolution from the cameras: 4096 by default, up to
+    /// [`LARGEST_RESOLUTION`](super::footprint::LARGEST_RESOLUTION) (8192) on request.
+    pub max_resolution: usize,
     /// Seed.
     pub seed: u64,
     /// Keep usable existing UVs.
@@ -80,6 +84,7 @@ impl Default for DelightSettings {
             tolerance: 0.01,
             light_paths: 20_000_000,
             resolution: None,
+            max_resolution: super::footprint::MAX_RESOLUTION,
             seed: 0,
             keep_uvs: true,
             direct_samples: 64,

@@ -46,9 +46,13 @@ pub struct DelightArgs {
     /// Light paths per light-tracing pass.
     #[arg(long, default_value_t = 20_000_000)]
     pub light_paths: u64,
-    /// Texture resolution: `auto` (256–4096 from the camera footprint) or a number.
+    /// Texture resolution: `auto` (from the cameras' pixel footprints: texels over the best-seen
+    /// part at least as dense as its pixels, 256 to `--max-resolution`) or a number.
     #[arg(long, default_value = "auto")]
     pub resolution: String,
+    /// Upper clamp of `--resolution auto`: 4096 (default) up to 8192.
+    #[arg(long, default_value_t = 4096)]
+    pub max_resolution: usize,
     /// Unwrap every object even when its own UVs are usable.
     #[arg(long)]
     pub unwrap_all: bool,
@@ -245,6 +249,9 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         "paper" => UpdateRule::Paper { alpha0: 2.0 },
         u => bail!("--update: expected 'fixed' or 'paper', got '{u}'"),
     };
+    if !(256..=8192).contains(&a.max_resolution) {
+        bail!("--max-resolution {}: must be in 256..=8192", a.max_resolution);
+    }
     if a.light_paths == 0 {
         bail!("--light-paths must be at least 1");
     }
@@ -286,6 +293,7 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         tolerance: a.tolerance,
         light_paths: a.light_paths,
         resolution,
+        max_resolution: a.max_resolution,
         seed: a.seed,
         keep_uvs: !a.unwrap_all,
         update,
@@ -386,6 +394,11 @@ fn write_outputs(
         objs.push(json!({
             "id": o.id,
             "resolution": [o.atlas.width, o.atlas.height],
+            "resolution_rule": o.resolution.rule.name(),
+            "resolution_from_cameras_unclamped": o.resolution.unclamped,
+            "pixel_density_best_seen": o.resolution.pixel_density,
+            "texel_density_best_seen": o.resolution.texel_density,
+            "seen_area_fraction": o.resolution.seen_area_fraction,
             "charts": o.atlas.charts,
             "kept_uvs": o.atlas.kept_uvs,
             "seen_fraction": o.seen_fraction,
@@ -556,7 +569,7 @@ fn write_outputs(
     });
     let report = json!({
         "scene": a.scene, "views": a.views, "n_views": views.len(),
-        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio},
+        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "max_resolution": a.max_resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio},
         "view_gains": view_gains,
         "converged": r.converged,
         "iterations": its,
@@ -648,6 +661,7 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         tolerance: 0.01,
         light_paths: 500_000,
         resolution: "32".into(),
+        max_resolution: 4096,
         unwrap_all: false,
         update: "fixed".into(),
         rerender_spp: 64,

@@ -1,15 +1,16 @@
 //! Stage 1 of [`delight`](crate::delight::delight): the objects to recover
 //! ([`select_objects`]: the named shapes or every non-emitting one) and their atlases
 //! ([`unwrap_objects`]: own UVs when usable, else new charts; the resolution is the setting, else
-//! the size of the object's square bitmap texture when its UVs are kept, else
-//! [`atlas::auto_resolution`]). An object whose unwrap fails is skipped with a warning.
+//! the size of the object's square bitmap texture when its UVs are kept, else from the cameras'
+//! pixel footprints, [`footprint`]). An object whose unwrap fails is skipped with a warning.
 //! Tests: `tests/delight.rs`, the atlas tests in `atlas/tests.rs`.
 
 use super::Inputs;
+use crate::delight::footprint::{self, ResolutionRule};
 use crate::delight::views::View;
 use crate::delight::{ObjectResult, atlas};
+use opal::camera::Camera;
 use opal::error::{Error, Result};
-use opal::math::Vec3;
 use opal::scene::Scene;
 use opal::scene::desc::{BsdfDesc, TextureDesc};
 
@@ -63,38 +64,55 @@ pub(in crate::delight) fn unwrap_objects(
     warnings: &mut Vec<String>,
 ) -> (Vec<ObjectResult>, Vec<(String, String)>) {
     let (desc, s, log) = (inp.desc, inp.s, inp.log);
-    let cams: Vec<(Vec3, f32, usize)> =
-        views.iter().map(|v| (v.camera.origin(), v.camera.tan_half_x, v.camera.width)).collect();
+    let cams: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
     let mut objects = Vec::new();
     let mut skipped = Vec::new();
     for &k in selected {
         let sh = &desc.shapes[k];
+        let samples = footprint::surface_footprints(inp.scene, &sh.mesh, &cams);
         // an object that keeps its UVs and already has a square bitmap texture gets a texture
-        // of the same size (the recovered map replaces it texel for texel); otherwise adaptive
+        // of the same size (the recovered map replaces it texel for texel); otherwise from the
+        // cameras
         let tex_res = existing_texture_size(&sh.bsdf).filter(|&(w, h)| w == h && s.keep_uvs).map(|(w, _)| w);
-        let auto = || atlas::auto_resolution(&sh.mesh, &cams);
-        let res = s.resolution.or(tex_res).unwrap_or_else(auto);
-        let built = match atlas::build_atlas(&sh.mesh, res, s.keep_uvs) {
-            Ok(a) if !a.kept_uvs && s.resolution.is_none() && tex_res.is_some() => {
-                atlas::build_atlas(&sh.mesh, auto(), s.keep_uvs)
-            }
-            other => other,
+        let from_cameras = || {
+            footprint::camera_atlas(&sh.mesh, &samples, s.keep_uvs, s.max_resolution)
+                .map(|(a, u)| (a, ResolutionRule::Cameras, u))
         };
+        let built = match (s.resolution, tex_res) {
+            (Some(r), _) => {
+                atlas::build_atlas(&sh.mesh, r, s.keep_uvs).map(|a| (a, ResolutionRule::Setting, None))
+            }
+            (None, Some(r)) => match atlas::build_atlas(&sh.mesh, r, s.keep_uvs) {
+                Ok(a) if !a.kept_uvs => from_cameras(),
+                other => other.map(|a| (a, ResolutionRule::ExistingTexture, None)),
+            },
+            (None, None) => from_cameras(),
+        };
+        let built = built.map(|(a, rule, unclamped)| {
+            let c = footprint::resolution_choice(rule, unclamped, &samples, &a);
+            (a, c)
+        });
         match built {
-            Ok(a) => {
+            Ok((a, resolution)) => {
                 let n = a.width * a.height;
                 log(&format!(
-                    "atlas {}: {}×{}, {} chart(s), {} UVs",
+                    "atlas {}: {}×{}, {} chart(s), {} UVs; resolution from the {}, {:.0} % of the surface \
+                     seen, best-seen part {} pixels / {} texels per unit²",
                     sh.id,
                     a.width,
                     a.height,
                     a.charts,
-                    if a.kept_uvs { "kept" } else { "new" }
+                    if a.kept_uvs { "kept" } else { "new" },
+                    resolution.rule.name().replace('_', " "),
+                    100.0 * resolution.seen_area_fraction,
+                    resolution.pixel_density.map_or("-".into(), |d| format!("{d:.4e}")),
+                    resolution.texel_density.map_or("-".into(), |d| format!("{d:.4e}")),
                 ));
                 objects.push(ObjectResult {
                     shape: k,
                     id: sh.id.clone(),
                     atlas: a,
+                    resolution,
                     l: vec![[0.0; 3]; n],
                     observed: vec![false; n],
                     ed: vec![[0.0; 3]; n],
