@@ -17,7 +17,8 @@
 //!
 //! `OPAL_VIEW_GAINS=fixed|exposure|exposure+wb` overrides the mode of the two gained tests (e.g.
 //! `fixed` shows what the gained views give without the estimation; bounds are then not
-//! asserted); `OPAL_DELIGHT_PATHS` the light paths per pass (default 20 M).
+//! asserted); `OPAL_DELIGHT_PATHS` a fixed number of light paths per pass (default: from the texel count and
+//! the target noise, `delight::noise`).
 //!
 //! Textures are judged as issue 17 defines it: PSNR pixel-averaged at the input cameras (each
 //! pixel's 4 × 4 stratified rays, recovered vs truth albedo at the hit UVs); the texel-space
@@ -39,7 +40,7 @@ use opal::scene::Scene;
 use opal::scene::desc::{BitmapDesc, BsdfDesc, FilterType, SceneDesc, TextureDesc, WrapMode};
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
-    DelightResult, DelightSettings, ObjectResult, ViewGainMode, ViewGainSettings, delight,
+    DelightResult, DelightSettings, LightPaths, ObjectResult, ViewGainMode, ViewGainSettings, delight,
 };
 use std::path::PathBuf;
 
@@ -61,8 +62,11 @@ fn load() -> (SceneDesc, Vec<View>) {
 }
 
 fn settings(mode: ViewGainMode) -> DelightSettings {
-    let paths: u64 =
-        std::env::var("OPAL_DELIGHT_PATHS").ok().and_then(|v| v.parse().ok()).unwrap_or(20_000_000);
+    // OPAL_DELIGHT_PATHS = a fixed count per pass; default: from the texels and the target noise
+    let paths = std::env::var("OPAL_DELIGHT_PATHS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .map_or(DelightSettings::default().light_paths, LightPaths::Fixed);
     DelightSettings {
         light_paths: paths,
         iterations: 5,

@@ -52,6 +52,7 @@ mod direct;
 pub mod footprint;
 pub mod gains;
 pub mod inpaint;
+pub mod noise;
 mod observe;
 mod pipeline;
 mod result;
@@ -67,7 +68,7 @@ pub use gains::{ViewGain, ViewGainMode, ViewGainSettings, ViewGains, apply_view_
 pub use observe::{RegionStats, luminance_map, object_masks, pixel_ray, region_stats};
 pub use pipeline::delight;
 pub use result::{DelightResult, IterationStats, ObjectResult};
-pub use settings::{DebugSettings, DelightSettings, UpdateRule};
+pub use settings::{DebugSettings, DelightSettings, LightPaths, UpdateRule};
 pub use smooth::{reached_texels, smooth_in_charts, smooth_in_charts_masked};
 pub use timing::{StageClock, cpu_seconds};
 

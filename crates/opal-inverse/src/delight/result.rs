@@ -93,6 +93,13 @@ pub struct IterationStats {
     pub error_maps: Vec<Vec<f32>>,
     /// Seconds of this iteration.
     pub seconds: f64,
+    /// Light paths of this pass.
+    pub light_paths: u64,
+    /// Per object: achieved relative per-texel noise of the raw indirect irradiance
+    /// ([`super::noise::texel_noise`]; NaN when no texel has indirect light).
+    pub texel_noise: Vec<f64>,
+    /// The same over the texels of all objects together.
+    pub texel_noise_all: f64,
     /// Per object: mean of the tracer's direct irradiance / light-sampled `Ed` (consistency
     /// check of the two estimators; ≈ 1). Measured in the first iteration only (NaN after: the
     /// later passes do not deposit first hits).

@@ -14,8 +14,8 @@ use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
-    DelightResult, DelightSettings, ObjectResult, StageClock, UpdateRule, ViewGainMode, ViewGainSettings,
-    apply_view_gains, delight, object_masks, recovered_desc, region_stats,
+    DelightResult, DelightSettings, LightPaths, ObjectResult, StageClock, UpdateRule, ViewGainMode,
+    ViewGainSettings, apply_view_gains, delight, object_masks, recovered_desc, region_stats,
 };
 use serde_json::json;
 use std::fmt::Write as _;
@@ -43,9 +43,14 @@ pub struct DelightArgs {
     /// Stop when the max relative error (outliers removed) is below this.
     #[arg(long, default_value_t = 0.01)]
     pub tolerance: f64,
-    /// Light paths per light-tracing pass.
-    #[arg(long, default_value_t = 20_000_000)]
-    pub light_paths: u64,
+    /// Light paths per light-tracing pass: `auto` (from the texel count and `--target-noise`) or
+    /// a number.
+    #[arg(long, default_value = "auto")]
+    pub light_paths: String,
+    /// Target relative per-texel noise of the light-traced indirect irradiance for
+    /// `--light-paths auto` (default 0.207: about 20 M paths on the reference Cornell box).
+    #[arg(long)]
+    pub target_noise: Option<f64>,
     /// Texture resolution: `auto` (from the cameras' pixel footprints: texels over the best-seen
     /// part at least as dense as its pixels, 256 to `--max-resolution`) or a number.
     #[arg(long, default_value = "auto")]
@@ -220,6 +225,10 @@ fn rewrite_scene(text: &str, scene_dir: &Path, objects: &[ObjectResult], desc: &
     Ok(out)
 }
 
+fn finite_or_null(x: f64) -> serde_json::Value {
+    if x.is_finite() { json!(x) } else { json!(null) }
+}
+
 /// Runs the whole de-lighting with outputs; returns the report.
 pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serde_json::Value> {
     let desc = opal::scene::load::load_mitsuba_xml(&a.scene, &[])
@@ -252,9 +261,27 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     if !(256..=8192).contains(&a.max_resolution) {
         bail!("--max-resolution {}: must be in 256..=8192", a.max_resolution);
     }
-    if a.light_paths == 0 {
-        bail!("--light-paths must be at least 1");
-    }
+    let light_paths = match a.light_paths.as_str() {
+        "auto" => {
+            let t = a.target_noise.unwrap_or(opal_inverse::delight::noise::DEFAULT_TARGET_NOISE);
+            if !(t.is_finite() && t > 0.0) {
+                bail!("--target-noise must be a number > 0, got {t}");
+            }
+            LightPaths::TargetNoise(t)
+        }
+        n => {
+            let n: u64 = n
+                .parse()
+                .with_context(|| format!("--light-paths: expected 'auto' or a number, got '{n}'"))?;
+            if n == 0 {
+                bail!("--light-paths must be at least 1");
+            }
+            if a.target_noise.is_some() {
+                bail!("--target-noise applies to --light-paths auto only");
+            }
+            LightPaths::Fixed(n)
+        }
+    };
     let superres = match a.luminance.as_str() {
         "superres" => {
             let mut sr = opal_inverse::delight::superres::SrSettings {
@@ -291,7 +318,7 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         objects: a.objects.clone(),
         iterations: a.iterations,
         tolerance: a.tolerance,
-        light_paths: a.light_paths,
+        light_paths,
         resolution,
         max_resolution: a.max_resolution,
         seed: a.seed,
@@ -543,6 +570,9 @@ fn write_outputs(
                 "per_object": r.objects.iter().zip(&i.per_object).map(|(o, p)| json!({"id": o.id, "max": p.0, "mean": p.1, "outliers": p.2})).collect::<Vec<_>>(),
                 "tracer_direct_over_light_sampled_direct": i.direct_ratio.iter().map(|v| if v.is_finite() { json!(v) } else { json!(null) }).collect::<Vec<_>>(),
                 "seconds": i.seconds,
+                "light_paths": i.light_paths,
+                "texel_noise": finite_or_null(i.texel_noise_all),
+                "texel_noise_per_object": r.objects.iter().zip(&i.texel_noise).map(|(o, v)| json!({"id": o.id, "noise": finite_or_null(*v)})).collect::<Vec<_>>(),
             })
         })
         .collect();
@@ -569,7 +599,7 @@ fn write_outputs(
     });
     let report = json!({
         "scene": a.scene, "views": a.views, "n_views": views.len(),
-        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "max_resolution": a.max_resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio},
+        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "target_noise": a.target_noise, "resolution": a.resolution, "max_resolution": a.max_resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio},
         "view_gains": view_gains,
         "converged": r.converged,
         "iterations": its,
@@ -659,7 +689,8 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         objects: None,
         iterations: 3,
         tolerance: 0.01,
-        light_paths: 500_000,
+        light_paths: "500000".into(),
+        target_noise: None,
         resolution: "32".into(),
         max_resolution: 4096,
         unwrap_all: false,

@@ -16,8 +16,8 @@ use crate::delight::atlas::NO_TRI;
 use crate::delight::timing::{StageClock, Timings};
 use crate::delight::views::{PureBuffer, View};
 use crate::delight::{
-    DelightSettings, IterationStats, ObjectResult, UpdateRule, luminance, reached_texels, recovered_desc,
-    smooth_in_charts_masked, superres,
+    DelightSettings, IterationStats, LightPaths, ObjectResult, UpdateRule, luminance, noise, reached_texels,
+    recovered_desc, smooth_in_charts_masked, superres,
 };
 use opal::error::Result;
 use opal::integrator::light_tracer::{self, IrradianceMaps, IrradianceTarget, LightTraceSettings};
@@ -49,6 +49,10 @@ struct ObjectPass {
     rel: Vec<f32>,
     /// Tracer's direct irradiance / light-sampled `Ed` (NaN after the first pass).
     direct_ratio: f64,
+    /// Achieved relative per-texel noise of the raw indirect irradiance.
+    noise: f64,
+    /// Its residuals, corrected for the smoothing window (pooled over the objects).
+    residuals: Vec<f64>,
 }
 
 /// Runs the light-tracing iterations on `objects` (luminance, direct irradiance and initial
@@ -71,6 +75,14 @@ pub(in crate::delight) fn iterate(
             })
         })
         .collect();
+    let texels: usize = objects.iter().map(|o| o.atlas.width * o.atlas.height).sum();
+    let paths = s.light_paths.paths(texels);
+    if let LightPaths::TargetNoise(t) = s.light_paths {
+        log(&format!(
+            "light paths per pass: {paths} for {texels} texels at a target per-texel noise of {:.1} %",
+            100.0 * t
+        ));
+    }
     let mut iterations = Vec::new();
     let mut converged = false;
     let mut light_paths = 0;
@@ -82,7 +94,7 @@ pub(in crate::delight) fn iterate(
         let rdesc = recovered_desc(desc, objects);
         let rscene = Scene::build(&rdesc)?;
         let lt = LightTraceSettings {
-            paths: s.light_paths,
+            paths,
             batch_size: 1 << 20,
             max_depth: -1,
             rr_depth: 5,
@@ -113,7 +125,11 @@ pub(in crate::delight) fn iterate(
                 object_pass(o, m, k, s, log)
             })
             .collect();
+        let mut texel_noise = Vec::new();
+        let mut all_residuals = Vec::new();
         for p in post {
+            texel_noise.push(p.noise);
+            all_residuals.extend(p.residuals);
             gmax = gmax.max(p.max);
             gsum += p.sum;
             gcount += p.count;
@@ -134,6 +150,19 @@ pub(in crate::delight) fn iterate(
             timings.push("superres", t1.elapsed());
         }
         let c0 = StageClock::start();
+        // the residuals are already corrected for their windows
+        let texel_noise_all = noise::texel_noise(&all_residuals, usize::MAX);
+        drop(all_residuals);
+        if let LightPaths::TargetNoise(t) = s.light_paths
+            && texel_noise_all > 2.0 * t
+        {
+            warnings.push(format!(
+                "iteration {k}: the per-texel noise of the indirect irradiance is {:.1} %, more than twice \
+                 the target {:.1} % (this scene leaves fewer deposits per path than the calibration)",
+                100.0 * texel_noise_all,
+                100.0 * t
+            ));
+        }
         fill_unseen(objects);
         let st = IterationStats {
             iteration: k,
@@ -143,13 +172,17 @@ pub(in crate::delight) fn iterate(
             error_maps,
             seconds: t0.elapsed().as_secs_f64(),
             direct_ratio,
+            light_paths: paths,
+            texel_noise,
+            texel_noise_all,
         };
         log(&format!(
-            "iteration {k}: max rel. error {:.2} %, mean {:.2} % ({:.1} s, {} light paths)",
+            "iteration {k}: max rel. error {:.2} %, mean {:.2} % ({:.1} s, {} light paths, per-texel noise {:.1} %)",
             100.0 * st.max_rel_error,
             100.0 * st.mean_rel_error,
             st.seconds,
-            s.light_paths
+            paths,
+            100.0 * st.texel_noise_all
         ));
         let done = st.max_rel_error < s.tolerance;
         iterations.push(st);
@@ -184,6 +217,13 @@ fn object_pass(
     // the object) would darken the contact edges
     let reach = reached_texels(&o.observed, &o.ed, &ei_raw);
     let ei_r = smooth_in_charts_masked(&ei_raw, &o.atlas, r, &reach);
+    // achieved noise: residuals of the raw map against the smoothed one on covered reached texels
+    let mask: Vec<bool> = (0..reach.len()).map(|i| reach[i] && o.atlas.texel_tri[i] != NO_TRI).collect();
+    let window = (2 * r + 1) * (2 * r + 1);
+    let corr = 1.0 / (1.0 - 1.0 / window.max(2) as f64).sqrt();
+    let residuals: Vec<f64> =
+        noise::texel_residuals(&ei_raw, &ei_r, &mask).iter().map(|x| x * corr).collect();
+    let noise = noise::texel_noise(&residuals, usize::MAX);
     let direct_ratio = direct_ratio(o, m);
     let (rel, e_abs, stats) = error_stats(o, &ei_r);
     update_ei(o, &ei_r, &e_abs, k, s.update);
@@ -192,7 +232,7 @@ fn object_pass(
         debug_print(o, log);
     }
     let (max, sum, count, outliers) = stats;
-    ObjectPass { max, sum, count, outliers, rel, direct_ratio }
+    ObjectPass { max, sum, count, outliers, rel, direct_ratio, noise, residuals }
 }
 
 /// Direct consistency: mean of the tracer's first-hit irradiance over the light-sampled `Ed`
