@@ -21,8 +21,9 @@
 //! 5. `Kd = π L / (Ed + Ei)` per channel with `Ei = share · Ed` (or `share` × the scene-average
 //!    irradiance where a texel has no direct light); where `Kd > 1`, `Ei` is raised to
 //!    `π L − Ed` (so `Kd = 1`); `Kd` is computed on observed texels and inpainted elsewhere;
-//! 6. iterations: a light-tracing pass ([`opal::integrator::light_tracer`], importance transport)
-//!    with the current `Kd` gives the indirect irradiance `Ei_r` (smoothed within charts over
+//! 6. iterations: a light-tracing pass ([`opal::integrator::light_tracer`], importance transport;
+//!    paths from the texel count and a target per-texel noise, [`noise`], whose achieved value
+//!    is measured every pass) with the current `Kd` gives the indirect irradiance `Ei_r` (smoothed within charts over
 //!    `smooth` texels: indirect light is low-frequency and this cuts Monte-Carlo noise); the
 //!    error `e = L − Kd/π (Ed + Ei_r)` on observed texels, relative to `L` (luminance), with
 //!    quartile (Tukey 1.5·IQR) outlier rejection per object gives the max/mean error of the
@@ -33,7 +34,8 @@
 //! Files: settings in `settings.rs`, results in `result.rs`; [`delight`] in `pipeline.rs` runs
 //! the named stages of `stages/` in order: `unwrap.rs` (selection, atlases), `direct.rs` (step
 //! 4), `luminance.rs` (steps 2–3, gains), `iterate.rs` (step 6), `outputs.rs` (debug dump,
-//! result); the albedo update of step 5 in `albedo.rs`, the in-chart smoothing in `smooth.rs`,
+//! result); the texture resolution from the cameras in `footprint.rs`, the light paths per pass
+//! and the achieved noise in `noise.rs`, the albedo update of step 5 in `albedo.rs`, the in-chart smoothing in `smooth.rs`,
 //! the direct-irradiance estimator in `direct.rs`, luminance maps and view/region helpers in
 //! `observe.rs`, stage clocks in `timing.rs`; shared helpers (luminance, albedo image,
 //! recovered scene) here. Diagnostics are switched by [`DebugSettings`] and
