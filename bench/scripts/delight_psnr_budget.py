@@ -2,7 +2,7 @@
 """Error budget of the back-wall texture PSNR of `opal delight` (issue 6 item 4).
 
 Substitutes the truth for one component at a time. Inputs:
-  * a debug dump of a run: OPAL_DELIGHT_DUMP=DIR opal delight ... --objects back_wall
+  * a debug dump of a run: opal delight ... --objects back_wall --debug-dump DIR
     writes DIR/back_wall_final_{l,obs,ed,ei,kd}.exr (luminance map B, observed mask, direct and
     indirect irradiance, albedo);
   * the true indirect irradiance of the back wall in the true scene (light tracing with many
@@ -11,7 +11,7 @@ Substitutes the truth for one component at a time. Inputs:
 Modes:
   make  DUMP TRUE_EI OUTDIR : writes OUTDIR/E_true.exr (closed-form direct of the dump + the
         oracle indirect smoothed 9x9) and OUTDIR/B_true.exr (= truth * E_true / pi), the inputs of
-        the superres hooks (OPAL_SR_TRUTH=B_true.exr, OPAL_SR_SHADING=E_true.exr)
+        the superres hooks (--sr-truth B_true.exr, --sr-shading E_true.exr)
   eval  E_TRUE DUMP...      : PSNR (peak 1, texels seen) of the pipeline albedo, of pi*B/E_true
         (the luminance map alone) and of pi*B_true/E_est (the irradiance alone), and pi*B/E_true
         split into flat texels, texels within 1 texel of the texture's lines (edges) and texels

@@ -125,6 +125,11 @@ fn tiny_run_writes_everything_and_scene_loads() {
     let obj_keys = [
         "id",
         "resolution",
+        "resolution_rule",
+        "resolution_from_cameras_unclamped",
+        "pixel_density_best_seen",
+        "texel_density_best_seen",
+        "seen_area_fraction",
         "charts",
         "kept_uvs",
         "seen_fraction",
@@ -145,6 +150,23 @@ fn tiny_run_writes_everything_and_scene_loads() {
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(written, report);
     assert_eq!(report["iterations"].as_array().unwrap().len(), 2);
+    let it_keys = [
+        "iteration",
+        "max_rel_error",
+        "mean_rel_error",
+        "per_object",
+        "tracer_direct_over_light_sampled_direct",
+        "seconds",
+        "light_paths",
+        "texel_noise",
+        "texel_noise_per_object",
+    ];
+    for it in report["iterations"].as_array().unwrap() {
+        common::assert_keys("delight --json iteration", it, &it_keys, "delight.md");
+        // the achieved per-texel noise of the pass is measured (a number in (0, 10))
+        let noise = it["texel_noise"].as_f64().expect("texel_noise measured");
+        assert!(noise > 0.0 && noise < 10.0, "{noise}");
+    }
     for f in [
         "scene.xml",
         "scene.glb",
@@ -172,7 +194,7 @@ fn tiny_run_writes_everything_and_scene_loads() {
     let (views, _) = opal_inverse::delight::views::read_views(&tj).unwrap();
     let s = opal_inverse::delight::DelightSettings {
         resolution: Some(16),
-        light_paths: 100_000,
+        light_paths: opal_inverse::delight::LightPaths::Fixed(100_000),
         iterations: 2,
         ..Default::default()
     };

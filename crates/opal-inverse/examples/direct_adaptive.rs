@@ -10,9 +10,8 @@
 //! two differ (elsewhere both give the closed-form value or 0, as the reference does); errors
 //! relative to the object's mean direct irradiance.
 
-use opal::math::Vec3;
 use opal::scene::{Scene, load_mitsuba_xml};
-use opal_inverse::delight::{StageClock, atlas, direct_irradiance, luminance};
+use opal_inverse::delight::{StageClock, atlas, direct_irradiance, footprint, luminance};
 use std::path::PathBuf;
 
 fn main() {
@@ -22,18 +21,18 @@ fn main() {
     let refs = args.get(2).copied().unwrap_or(256);
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox/scene.xml");
     let mut desc = load_mitsuba_xml(&p, &[]).expect("bundled scene loads");
-    let cams: Vec<(Vec3, f32, usize)> = desc
-        .sensors
-        .iter()
-        .map(|s| (s.to_world.w_axis.truncate(), (0.5 * s.fov_x_deg.to_radians()).tan(), s.width))
-        .collect();
+    let scene0 = Scene::build(&desc).expect("scene builds");
     let mut atlases = Vec::new();
     for sh in &mut desc.shapes {
         if sh.emitter.is_some() {
             continue;
         }
-        let res = if sh.id == "back_wall" { 256 } else { atlas::auto_resolution(&sh.mesh, &cams) };
-        let a = atlas::build_atlas(&sh.mesh, res, true).expect("atlas");
+        let a = if sh.id == "back_wall" {
+            atlas::build_atlas(&sh.mesh, 256, true).expect("atlas")
+        } else {
+            let samples = footprint::surface_footprints(&scene0, &sh.mesh, &scene0.cameras);
+            footprint::camera_atlas(&sh.mesh, &samples, true, footprint::MAX_RESOLUTION).expect("atlas").0
+        };
         sh.mesh = a.mesh.clone();
         atlases.push((sh.id.clone(), a));
     }

@@ -2,9 +2,10 @@
 //! `SCENE`), timed (method C, issue "100 M light paths on the Cornell box ≤ 20 s on 2 cores";
 //! the scanned-object room of `make_scan_room` for the "≥ 4 M paths/s on 2 cores" goal).
 //!
-//! The texture maps are the ones `opal delight` builds for the scene's views (adaptive
-//! resolution from the scene's sensors; for the bundled box's 8 views ≈ 1.16 M texels over 7
-//! objects), the materials the scene's own. Prints paths, wall seconds, CPU seconds and paths/s.
+//! The texture maps are the ones `opal delight` builds for the scene's views (resolution from
+//! the pixel footprints of the scene's sensors, `delight::footprint`; every object, the back
+//! wall too: for the bundled box's 8 views 733 k texels over 7 objects, 1.16 M with the earlier
+//! rule from the bounding-box centre — timings and checksums before 2026-11-26 used those), the materials the scene's own. Prints paths, wall seconds, CPU seconds and paths/s.
 //!
 //! Run: `cargo run --release -p opal-inverse --example light_trace_pass -- [PATHS] [THREADS]`
 //! (PATHS default 100 000 000). Environment: `SCENE` (path of a Mitsuba XML scene, default the
@@ -15,9 +16,8 @@
 //! deposits, as in the de-lighting passes after the first).
 
 use opal::integrator::light_tracer::{self, IrradianceTarget, LightTraceSettings};
-use opal::math::Vec3;
 use opal::scene::{Scene, load_mitsuba_xml};
-use opal_inverse::delight::{StageClock, atlas};
+use opal_inverse::delight::{StageClock, atlas, footprint};
 use std::path::PathBuf;
 
 fn main() {
@@ -31,11 +31,8 @@ fn main() {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox/scene.xml")
     });
     let mut desc = load_mitsuba_xml(&p, &[]).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
-    let cams: Vec<(Vec3, f32, usize)> = desc
-        .sensors
-        .iter()
-        .map(|s| (s.to_world.w_axis.truncate(), (0.5 * s.fov_x_deg.to_radians()).tan(), s.width))
-        .collect();
+    // the pixel footprints of the scene's own sensors on the original geometry
+    let scene0 = Scene::build(&desc).expect("scene builds");
     let mut targets = Vec::new();
     let mut texels = 0;
     for sh in &mut desc.shapes {
@@ -43,11 +40,13 @@ fn main() {
             targets.push(None);
             continue;
         }
-        let res = std::env::var("RES")
-            .ok()
-            .map(|r| r.parse().expect("RES"))
-            .unwrap_or_else(|| atlas::auto_resolution(&sh.mesh, &cams));
-        let a = atlas::build_atlas(&sh.mesh, res, true).expect("atlas");
+        let a = match std::env::var("RES").ok().map(|r| r.parse().expect("RES")) {
+            Some(res) => atlas::build_atlas(&sh.mesh, res, true).expect("atlas"),
+            None => {
+                let samples = footprint::surface_footprints(&scene0, &sh.mesh, &scene0.cameras);
+                footprint::camera_atlas(&sh.mesh, &samples, true, footprint::MAX_RESOLUTION).expect("atlas").0
+            }
+        };
         texels += a.width * a.height;
         targets.push(Some(IrradianceTarget { width: a.width, height: a.height, texel_area: a.texel_area }));
         sh.mesh = a.mesh;

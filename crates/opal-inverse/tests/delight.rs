@@ -23,7 +23,9 @@ use opal::math::Vec2;
 use opal::scene::Scene;
 use opal::scene::desc::{SceneDesc, TextureDesc};
 use opal_inverse::delight::views::{View, read_views};
-use opal_inverse::delight::{DelightResult, DelightSettings, ViewGainMode, ViewGainSettings, delight};
+use opal_inverse::delight::{
+    DelightResult, DelightSettings, LightPaths, ViewGainMode, ViewGainSettings, delight,
+};
 use std::path::{Path, PathBuf};
 
 mod common;
@@ -207,7 +209,7 @@ fn views_with_seed(desc: &mut SceneDesc, res: usize, seed: u64) -> Vec<View> {
 fn small_settings() -> DelightSettings {
     DelightSettings {
         resolution: Some(32),
-        light_paths: 500_000,
+        light_paths: LightPaths::Fixed(500_000),
         iterations: 4,
         direct_samples: 64,
         tolerance: 0.0,
@@ -308,7 +310,7 @@ fn lights_small_constant_albedos_within_1_percent() {
     // point settles after 6–7 (re-rendering error 38 % after 5 passes, 1.5 % after 8).
     let s = DelightSettings {
         resolution: Some(128),
-        light_paths: 2_000_000,
+        light_paths: LightPaths::Fixed(2_000_000),
         iterations: 8,
         tolerance: 0.0,
         ..Default::default()
@@ -364,7 +366,7 @@ fn lights_small_power_sampled_lights_within_1_percent() {
     let (views, _) = read_views(&dir.join("transforms.json")).unwrap();
     let s = DelightSettings {
         resolution: Some(128),
-        light_paths: 2_000_000,
+        light_paths: LightPaths::Fixed(2_000_000),
         iterations: 8,
         direct_samples: 256,
         tolerance: 0.0,
@@ -473,8 +475,11 @@ fn mitsuba_cbox_acceptance() {
     let desc = load(&dir.join("scene.xml"));
     let (views, warn) = read_views(&dir.join("transforms.json")).unwrap();
     assert!(warn.is_empty(), "{warn:?}");
-    let paths: u64 =
-        std::env::var("OPAL_DELIGHT_PATHS").ok().and_then(|v| v.parse().ok()).unwrap_or(20_000_000);
+    // OPAL_DELIGHT_PATHS = a fixed count per pass; default: from the texels and the target noise
+    let paths = std::env::var("OPAL_DELIGHT_PATHS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .map_or(DelightSettings::default().light_paths, LightPaths::Fixed);
     let s = DelightSettings { light_paths: paths, iterations: 5, tolerance: 0.0, ..Default::default() };
     let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
     let worst = report(&r, &desc);
@@ -508,8 +513,11 @@ fn mitsuba_cbox_view_gains_acceptance() {
         Ok("exposure+wb") | Err(_) => ViewGainMode::ExposureWb,
         Ok(other) => panic!("OPAL_VIEW_GAINS: unknown mode {other}"),
     };
-    let paths: u64 =
-        std::env::var("OPAL_DELIGHT_PATHS").ok().and_then(|v| v.parse().ok()).unwrap_or(20_000_000);
+    // OPAL_DELIGHT_PATHS = a fixed count per pass; default: from the texels and the target noise
+    let paths = std::env::var("OPAL_DELIGHT_PATHS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .map_or(DelightSettings::default().light_paths, LightPaths::Fixed);
     let s = DelightSettings {
         light_paths: paths,
         iterations: 5,

@@ -3,8 +3,8 @@
 //! emitters and cameras.
 //!
 //! Pipeline ([`delight`]):
-//! 1. atlas per object ([`atlas`]: own UVs when usable, else planar charts + shelf packing),
-//!    resolution from [`atlas::auto_resolution`] unless given;
+//! 1. atlas per object ([`atlas`]: own UVs when usable, else new charts), resolution from the
+//!    cameras' pixel footprints ([`footprint`]) unless given or the object's own texture size;
 //! 2. (unless [`ViewGainMode::Fixed`]) per-view gains (exposure, white balance) from the
 //!    overlap of the views ([`gains`]); the views are divided by them before everything below;
 //!    luminance map `L`: every covered texel is projected into every view; a view counts when
@@ -21,8 +21,9 @@
 //! 5. `Kd = π L / (Ed + Ei)` per channel with `Ei = share · Ed` (or `share` × the scene-average
 //!    irradiance where a texel has no direct light); where `Kd > 1`, `Ei` is raised to
 //!    `π L − Ed` (so `Kd = 1`); `Kd` is computed on observed texels and inpainted elsewhere;
-//! 6. iterations: a light-tracing pass ([`opal::integrator::light_tracer`], importance transport)
-//!    with the current `Kd` gives the indirect irradiance `Ei_r` (smoothed within charts over
+//! 6. iterations: a light-tracing pass ([`opal::integrator::light_tracer`], importance transport;
+//!    paths from the texel count and a target per-texel noise, [`noise`], whose achieved value
+//!    is measured every pass) with the current `Kd` gives the indirect irradiance `Ei_r` (smoothed within charts over
 //!    `smooth` texels: indirect light is low-frequency and this cuts Monte-Carlo noise); the
 //!    error `e = L − Kd/π (Ed + Ei_r)` on observed texels, relative to `L` (luminance), with
 //!    quartile (Tukey 1.5·IQR) outlier rejection per object gives the max/mean error of the
@@ -30,10 +31,15 @@
 //!    gradient step `Ei ← max(0, Ei + α_k Kd/π e)`, `α_k = α₀/(1+k)`; `Kd` is recomputed with
 //!    the [0, 1] correction; stop when the max error is below the tolerance or at the limit.
 //!
-//! Files: settings in `settings.rs`, results in `result.rs`; [`delight`] and its steps in
-//! `pipeline.rs`, the direct irradiance in `direct.rs`, luminance maps and view/region helpers
-//! in `observe.rs`, stage clocks in `timing.rs`; shared helpers (luminance, albedo image,
-//! recovered scene) here.
+//! Files: settings in `settings.rs`, results in `result.rs`; [`delight`] in `pipeline.rs` runs
+//! the named stages of `stages/` in order: `unwrap.rs` (selection, atlases), `direct.rs` (step
+//! 4), `luminance.rs` (steps 2–3, gains), `iterate.rs` (step 6), `outputs.rs` (debug dump,
+//! result); the texture resolution from the cameras in `footprint.rs`, the light paths per pass
+//! and the achieved noise in `noise.rs`, the albedo update of step 5 in `albedo.rs`, the in-chart smoothing in `smooth.rs`,
+//! the direct-irradiance estimator in `direct.rs`, luminance maps and view/region helpers in
+//! `observe.rs`, stage clocks in `timing.rs`; shared helpers (luminance, albedo image,
+//! recovered scene) here. Diagnostics are switched by [`DebugSettings`] and
+//! [`superres::SrDiagnostics`] (never by environment variables).
 //!
 //! Tests: unit tests of the parts in their modules; `crates/opal-inverse/tests/delight.rs`
 //! (round trip on a small Cornell box rendered by Opal at known albedos; the independent
@@ -42,14 +48,19 @@
 // Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
 #![allow(clippy::needless_range_loop)]
 
+mod albedo;
 pub mod atlas;
 mod direct;
+pub mod footprint;
 pub mod gains;
 pub mod inpaint;
+pub mod noise;
 mod observe;
 mod pipeline;
 mod result;
 mod settings;
+mod smooth;
+mod stages;
 pub mod superres;
 mod timing;
 pub mod views;
@@ -57,9 +68,10 @@ pub mod views;
 pub use direct::{MAX_LIGHTS_PER_TEXEL, PENUMBRA_DILATION, direct_irradiance};
 pub use gains::{ViewGain, ViewGainMode, ViewGainSettings, ViewGains, apply_view_gains};
 pub use observe::{RegionStats, luminance_map, object_masks, pixel_ray, region_stats};
-pub use pipeline::{delight, reached_texels, smooth_in_charts, smooth_in_charts_masked};
+pub use pipeline::delight;
 pub use result::{DelightResult, IterationStats, ObjectResult};
-pub use settings::{DebugSettings, DelightSettings, UpdateRule};
+pub use settings::{DebugSettings, DelightSettings, LightPaths, UpdateRule};
+pub use smooth::{reached_texels, smooth_in_charts, smooth_in_charts_masked};
 pub use timing::{StageClock, cpu_seconds};
 
 use opal::image::Image;

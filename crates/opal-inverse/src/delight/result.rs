@@ -4,6 +4,7 @@
 //! Tests: `tests/delight.rs` (round trip through [`ObjectResult::mean_kd_observed`]).
 
 use super::atlas::{Atlas, NO_TRI};
+use super::footprint::ResolutionChoice;
 use super::gains::ViewGains;
 use super::to_image;
 use opal::image::Image;
@@ -17,6 +18,9 @@ pub struct ObjectResult {
     pub id: String,
     /// Atlas (mesh with UVs, texel → surface).
     pub atlas: Atlas,
+    /// How the atlas resolution was chosen, the pixel and texel densities of the best-seen part
+    /// and the seen fraction of the surface.
+    pub resolution: ResolutionChoice,
     /// Observed luminance per texel (inpainted in holes).
     pub l: Vec<[f32; 3]>,
     /// Whether a texel was seen by at least one view.
@@ -89,6 +93,13 @@ pub struct IterationStats {
     pub error_maps: Vec<Vec<f32>>,
     /// Seconds of this iteration.
     pub seconds: f64,
+    /// Light paths of this pass.
+    pub light_paths: u64,
+    /// Per object: achieved relative per-texel noise of the raw indirect irradiance
+    /// ([`super::noise::texel_noise`]; NaN when no texel has indirect light).
+    pub texel_noise: Vec<f64>,
+    /// The same over the texels of all objects together.
+    pub texel_noise_all: f64,
     /// Per object: mean of the tracer's direct irradiance / light-sampled `Ed` (consistency
     /// check of the two estimators; ≈ 1). Measured in the first iteration only (NaN after: the
     /// later passes do not deposit first hits).

@@ -1,4 +1,5 @@
-//! Settings of the de-lighting ([`DelightSettings`]): iterations and tolerance, light paths,
+//! Settings of the de-lighting ([`DelightSettings`]): iterations and tolerance, light paths
+//! ([`LightPaths`]),
 //! atlas resolution, direct-irradiance sampling, the indirect update rule ([`UpdateRule`]), the
 //! super-resolution settings, the per-view gains ([`ViewGainSettings`]) and the debug outputs ([`DebugSettings`], off by default).
 //! Tests: `tests/delight.rs` and the CLI's `opal delight` tests (through [`super::delight`]).
@@ -18,6 +19,26 @@ pub enum UpdateRule {
     },
 }
 
+/// Light paths per light-tracing pass.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LightPaths {
+    /// This many paths per pass.
+    Fixed(u64),
+    /// From the texel count of the recovered objects and this relative per-texel noise of the
+    /// raw indirect irradiance ([`super::noise::paths_for_noise`]).
+    TargetNoise(f64),
+}
+
+impl LightPaths {
+    /// Paths per pass for `texels` texels.
+    pub fn paths(self, texels: usize) -> u64 {
+        match self {
+            LightPaths::Fixed(n) => n,
+            LightPaths::TargetNoise(t) => super::noise::paths_for_noise(texels, t),
+        }
+    }
+}
+
 /// Settings of [`delight`](super::delight).
 #[derive(Clone, Debug)]
 pub struct DelightSettings {
@@ -27,11 +48,16 @@ pub struct DelightSettings {
     pub iterations: usize,
     /// Stop when the max relative error (luminance, outliers removed) falls below this.
     pub tolerance: f64,
-    /// Light paths per light-tracing pass.
-    pub light_paths: u64,
+    /// Light paths per light-tracing pass: fixed, or from the texel count and a target noise
+    /// ([`super::noise`]).
+    pub light_paths: LightPaths,
     /// Texture resolution (square); `None` = the size of the object's existing square bitmap
-    /// texture when its UVs are kept, else adaptive (256–4096).
+    /// texture when its UVs are kept, else from the cameras' pixel footprints
+    /// ([`footprint`](super::footprint), 256…`max_resolution`).
     pub resolution: Option<usize>,
+    /// Upper clamp of the resolution from the cameras: 4096 by default, up to
+    /// [`LARGEST_RESOLUTION`](super::footprint::LARGEST_RESOLUTION) (8192) on request.
+    pub max_resolution: usize,
     /// Seed.
     pub seed: u64,
     /// Keep usable existing UVs.
@@ -78,8 +104,9 @@ impl Default for DelightSettings {
             objects: None,
             iterations: 5,
             tolerance: 0.01,
-            light_paths: 20_000_000,
+            light_paths: LightPaths::TargetNoise(super::noise::DEFAULT_TARGET_NOISE),
             resolution: None,
+            max_resolution: super::footprint::MAX_RESOLUTION,
             seed: 0,
             keep_uvs: true,
             direct_samples: 64,

@@ -14,8 +14,8 @@ use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
-    DelightResult, DelightSettings, ObjectResult, StageClock, UpdateRule, ViewGainMode, ViewGainSettings,
-    apply_view_gains, delight, object_masks, recovered_desc, region_stats,
+    DelightResult, DelightSettings, LightPaths, ObjectResult, StageClock, UpdateRule, ViewGainMode,
+    ViewGainSettings, apply_view_gains, delight, object_masks, recovered_desc, region_stats,
 };
 use serde_json::json;
 use std::fmt::Write as _;
@@ -43,12 +43,21 @@ pub struct DelightArgs {
     /// Stop when the max relative error (outliers removed) is below this.
     #[arg(long, default_value_t = 0.01)]
     pub tolerance: f64,
-    /// Light paths per light-tracing pass.
-    #[arg(long, default_value_t = 20_000_000)]
-    pub light_paths: u64,
-    /// Texture resolution: `auto` (256–4096 from the camera footprint) or a number.
+    /// Light paths per light-tracing pass: `auto` (from the texel count and `--target-noise`) or
+    /// a number.
+    #[arg(long, default_value = "auto")]
+    pub light_paths: String,
+    /// Target relative per-texel noise of the light-traced indirect irradiance for
+    /// `--light-paths auto` (default 0.207: about 20 M paths on the reference Cornell box).
+    #[arg(long)]
+    pub target_noise: Option<f64>,
+    /// Texture resolution: `auto` (from the cameras' pixel footprints: texels over the best-seen
+    /// part at least as dense as its pixels, 256 to `--max-resolution`) or a number.
     #[arg(long, default_value = "auto")]
     pub resolution: String,
+    /// Upper clamp of `--resolution auto`: 4096 (default) up to 8192.
+    #[arg(long, default_value_t = 4096)]
+    pub max_resolution: usize,
     /// Unwrap every object even when its own UVs are usable.
     #[arg(long)]
     pub unwrap_all: bool,
@@ -89,6 +98,45 @@ pub struct DelightArgs {
     /// Print report.json on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Error-analysis outputs (all off by default; no effect on the results).
+    #[command(flatten)]
+    pub diagnostics: DiagnosticArgs,
+}
+
+/// Error-analysis switches of `opal delight` (used by `bench/scripts/delight_psnr_budget.py`);
+/// they map to `opal_inverse::delight::DebugSettings` and
+/// `opal_inverse::delight::superres::SrDiagnostics`.
+#[derive(Args, Debug, Clone, Default)]
+#[command(next_help_heading = "Diagnostics (error analysis)")]
+pub struct DiagnosticArgs {
+    /// Log per object and iteration the mean observed L, Ed, Ei, Kd and the clamped texels.
+    #[arg(long)]
+    pub debug_log: bool,
+    /// Write per object the final luminance, observed mask, Ed, Ei and albedo maps as EXR
+    /// (`<id>_final_<what>.exr`) into this directory.
+    #[arg(long, value_name = "DIR")]
+    pub debug_dump: Option<PathBuf>,
+    /// Irradiance map (EXR on the atlas grid, e.g. the true one) used as the shading of the
+    /// super-resolution instead of the estimate.
+    #[arg(long, value_name = "EXR")]
+    pub sr_shading: Option<PathBuf>,
+    /// Radiance map (EXR on the atlas grid) whose super-resolution operator residual against each
+    /// photo is printed (with `--sr-residual-dir`).
+    #[arg(long, value_name = "EXR")]
+    pub sr_truth: Option<PathBuf>,
+    /// Directory of the per-view residual images of `--sr-truth`.
+    #[arg(long, value_name = "DIR")]
+    pub sr_residual_dir: Option<PathBuf>,
+    /// Replace the photos by `--sr-truth` through the operator plus noise: `stderr`,
+    /// `stderrcorr`, a relative level such as `0.02`, `shuffle`, `relshuffle`, `clipK`.
+    #[arg(long, value_name = "MODE")]
+    pub sr_synth: Option<String>,
+    /// Sub-pixel rays per axis of the synthetic photos of `--sr-synth` (0 = those of the solve).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub sr_synth_subsamples: u32,
+    /// Print the super-resolution residual every 10 steps.
+    #[arg(long)]
+    pub sr_trace: bool,
 }
 
 fn exr(path: &Path, img: &Image) -> Result<()> {
@@ -177,6 +225,10 @@ fn rewrite_scene(text: &str, scene_dir: &Path, objects: &[ObjectResult], desc: &
     Ok(out)
 }
 
+fn finite_or_null(x: f64) -> serde_json::Value {
+    if x.is_finite() { json!(x) } else { json!(null) }
+}
+
 /// Runs the whole de-lighting with outputs; returns the report.
 pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serde_json::Value> {
     let desc = opal::scene::load::load_mitsuba_xml(&a.scene, &[])
@@ -206,13 +258,34 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         "paper" => UpdateRule::Paper { alpha0: 2.0 },
         u => bail!("--update: expected 'fixed' or 'paper', got '{u}'"),
     };
-    if a.light_paths == 0 {
-        bail!("--light-paths must be at least 1");
+    if !(256..=8192).contains(&a.max_resolution) {
+        bail!("--max-resolution {}: must be in 256..=8192", a.max_resolution);
     }
+    let light_paths = match a.light_paths.as_str() {
+        "auto" => {
+            let t = a.target_noise.unwrap_or(opal_inverse::delight::noise::DEFAULT_TARGET_NOISE);
+            if !(t.is_finite() && t > 0.0) {
+                bail!("--target-noise must be a number > 0, got {t}");
+            }
+            LightPaths::TargetNoise(t)
+        }
+        n => {
+            let n: u64 = n
+                .parse()
+                .with_context(|| format!("--light-paths: expected 'auto' or a number, got '{n}'"))?;
+            if n == 0 {
+                bail!("--light-paths must be at least 1");
+            }
+            if a.target_noise.is_some() {
+                bail!("--target-noise applies to --light-paths auto only");
+            }
+            LightPaths::Fixed(n)
+        }
+    };
     let superres = match a.luminance.as_str() {
         "superres" => {
             let mut sr = opal_inverse::delight::superres::SrSettings {
-                diagnostics: sr_diagnostics_from_env(),
+                diagnostics: sr_diagnostics(&a.diagnostics),
                 ..Default::default()
             };
             if let Some(l) = a.tv_lambda {
@@ -245,14 +318,15 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         objects: a.objects.clone(),
         iterations: a.iterations,
         tolerance: a.tolerance,
-        light_paths: a.light_paths,
+        light_paths,
         resolution,
+        max_resolution: a.max_resolution,
         seed: a.seed,
         keep_uvs: !a.unwrap_all,
         update,
         superres,
         view_gains: ViewGainSettings { mode, warn_ratio: a.gain_warn_ratio },
-        debug: debug_from_env(),
+        debug: debug_settings(&a.diagnostics),
         ..Default::default()
     };
     let r = delight(&desc, &views, &settings, log)?;
@@ -264,28 +338,25 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     write_outputs(a, &desc, &views, &r, &vwarn, log)
 }
 
-/// Debug outputs of the de-lighting from the environment (error-analysis hooks of
-/// `bench/scripts/delight_psnr_budget.py`): `OPAL_DELIGHT_DEBUG` (set: per-object means per
-/// iteration in the log), `OPAL_DELIGHT_DUMP=DIR` (final maps as EXR), `OPAL_SR_SHADING=E.exr`
-/// (given shading of the super-resolution).
-fn debug_from_env() -> opal_inverse::delight::DebugSettings {
+/// Debug outputs of the de-lighting from the diagnostic switches (error-analysis hooks of
+/// `bench/scripts/delight_psnr_budget.py`).
+fn debug_settings(d: &DiagnosticArgs) -> opal_inverse::delight::DebugSettings {
     opal_inverse::delight::DebugSettings {
-        print: std::env::var_os("OPAL_DELIGHT_DEBUG").is_some(),
-        dump_dir: std::env::var_os("OPAL_DELIGHT_DUMP").map(PathBuf::from),
-        shading: std::env::var_os("OPAL_SR_SHADING").map(PathBuf::from),
+        print: d.debug_log,
+        dump_dir: d.debug_dump.clone(),
+        shading: d.sr_shading.clone(),
     }
 }
 
-/// Error-analysis hooks of the super-resolution from the environment: `OPAL_SR_TRUTH=B.exr`
-/// with `OPAL_SR_DIAG=DIR`, `OPAL_SR_SYNTH=MODE`, `OPAL_SR_SYNTH_SS=N`, `OPAL_SR_TRACE` (see
+/// Error-analysis hooks of the super-resolution from the diagnostic switches (see
 /// `opal_inverse::delight::superres::SrDiagnostics`).
-fn sr_diagnostics_from_env() -> opal_inverse::delight::superres::SrDiagnostics {
+fn sr_diagnostics(d: &DiagnosticArgs) -> opal_inverse::delight::superres::SrDiagnostics {
     opal_inverse::delight::superres::SrDiagnostics {
-        truth: std::env::var_os("OPAL_SR_TRUTH").map(PathBuf::from),
-        residual_dir: std::env::var_os("OPAL_SR_DIAG").map(PathBuf::from),
-        synth: std::env::var("OPAL_SR_SYNTH").ok(),
-        synth_subsamples: std::env::var("OPAL_SR_SYNTH_SS").ok().and_then(|x| x.parse().ok()).unwrap_or(0),
-        trace: std::env::var_os("OPAL_SR_TRACE").is_some(),
+        truth: d.sr_truth.clone(),
+        residual_dir: d.sr_residual_dir.clone(),
+        synth: d.sr_synth.clone(),
+        synth_subsamples: d.sr_synth_subsamples,
+        trace: d.sr_trace,
     }
 }
 
@@ -350,6 +421,11 @@ fn write_outputs(
         objs.push(json!({
             "id": o.id,
             "resolution": [o.atlas.width, o.atlas.height],
+            "resolution_rule": o.resolution.rule.name(),
+            "resolution_from_cameras_unclamped": o.resolution.unclamped,
+            "pixel_density_best_seen": o.resolution.pixel_density,
+            "texel_density_best_seen": o.resolution.texel_density,
+            "seen_area_fraction": o.resolution.seen_area_fraction,
             "charts": o.atlas.charts,
             "kept_uvs": o.atlas.kept_uvs,
             "seen_fraction": o.seen_fraction,
@@ -494,6 +570,9 @@ fn write_outputs(
                 "per_object": r.objects.iter().zip(&i.per_object).map(|(o, p)| json!({"id": o.id, "max": p.0, "mean": p.1, "outliers": p.2})).collect::<Vec<_>>(),
                 "tracer_direct_over_light_sampled_direct": i.direct_ratio.iter().map(|v| if v.is_finite() { json!(v) } else { json!(null) }).collect::<Vec<_>>(),
                 "seconds": i.seconds,
+                "light_paths": i.light_paths,
+                "texel_noise": finite_or_null(i.texel_noise_all),
+                "texel_noise_per_object": r.objects.iter().zip(&i.texel_noise).map(|(o, v)| json!({"id": o.id, "noise": finite_or_null(*v)})).collect::<Vec<_>>(),
             })
         })
         .collect();
@@ -520,7 +599,7 @@ fn write_outputs(
     });
     let report = json!({
         "scene": a.scene, "views": a.views, "n_views": views.len(),
-        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "resolution": a.resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio},
+        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "target_noise": a.target_noise, "resolution": a.resolution, "max_resolution": a.max_resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio},
         "view_gains": view_gains,
         "converged": r.converged,
         "iterations": its,
@@ -610,8 +689,10 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         objects: None,
         iterations: 3,
         tolerance: 0.01,
-        light_paths: 500_000,
+        light_paths: "500000".into(),
+        target_noise: None,
         resolution: "32".into(),
+        max_resolution: 4096,
         unwrap_all: false,
         update: "fixed".into(),
         rerender_spp: 64,
@@ -623,6 +704,7 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         seed: 0,
         threads: None,
         json: false,
+        diagnostics: DiagnosticArgs::default(),
     };
     let report = run_pipeline(&args, &|l| eprintln!("demo delight: {l}"))?;
     eprintln!("demo: de-lighting report -> {}", args.output.join("report.html").display());

@@ -303,23 +303,3 @@ fn texel_owner(mesh: &TriangleMesh, tri_chart: &[u32], w: usize, h: usize) -> Ve
     });
     owner
 }
-
-/// Adaptive resolution (method C step 2): `sqrt(area × max density)` with density = 1/footprint²
-/// of one pixel of each camera at the distance of the object's bounding-box centre, clamped to
-/// [256, 4096]. `cameras`: (origin, tan of half the horizontal fov, width in pixels).
-pub fn auto_resolution(mesh: &TriangleMesh, cameras: &[(Vec3, f32, usize)]) -> usize {
-    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-    for p in &mesh.positions {
-        lo = lo.min(*p);
-        hi = hi.max(*p);
-    }
-    let c = 0.5 * (lo + hi);
-    let mut dens = 0.0f64;
-    for &(o, tan_half, w) in cameras {
-        let d = (o - c).length().max(1e-6) as f64;
-        let foot = 2.0 * d * tan_half as f64 / w as f64;
-        dens = dens.max(1.0 / (foot * foot));
-    }
-    let r = (mesh.area() * dens).sqrt();
-    if r.is_finite() { (r.round() as usize).clamp(256, 4096) } else { 256 }
-}

@@ -115,7 +115,7 @@ pub fn unwrap(
     let nc = chart_n.len();
     if nc * (2 * gutter + 1) * (2 * gutter + 1) > res * res {
         return Err(format!(
-            "{nc} charts do not fit a {res}² texture (unwrap failed); use a larger --resolution"
+            "{nc} charts do not fit a {res}² texture (unwrap failed); use a larger texture resolution"
         ));
     }
     let frames: Vec<Frame> = chart_n.iter().map(|&n| Frame::from_normal(n)).collect();

@@ -58,16 +58,6 @@ fn sphere_unwrap_bounded_cone() {
     assert!((sum / area - 1.0).abs() < 0.1, "{sum} vs {area}");
 }
 
-#[test]
-fn auto_resolution_follows_footprint() {
-    let m = rectangle_mesh(); // area 4
-    // camera at distance 4, tan = 0.5, 256 px: footprint 4·2·0.5/256 = 1/64 → 64² per unit²
-    let r = auto_resolution(&m, &[(Vec3::new(0.0, 0.0, 4.0), 0.5, 256)]);
-    assert_eq!(r, 256); // sqrt(4·4096) = 128 → clamped
-    let r = auto_resolution(&m, &[(Vec3::new(0.0, 0.0, 0.5), 0.5, 1024)]);
-    assert_eq!(r, 4096);
-}
-
 /// Bilinear texels (the 2×2 texels whose centres surround `uv`, in texel units).
 fn bilinear_texels(p: Vec2, w: usize, h: usize) -> [usize; 4] {
     let x0 = (p.x - 0.5).floor().clamp(0.0, (w - 1) as f32) as usize;

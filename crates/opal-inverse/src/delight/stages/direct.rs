@@ -1,0 +1,45 @@
+//! Stage 2 of [`delight`](crate::delight::delight): the direct irradiance `Ed` per texel of
+//! every object by light sampling ([`direct_irradiance`], seeded per object) and its scene
+//! average over the covered surface (the initial indirect estimate of texels without direct
+//! light). Runs before the luminance stage. Tests: `tests/delight.rs`, the unit tests of
+//! `delight/direct.rs`.
+
+// Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
+use crate::delight::atlas::NO_TRI;
+use crate::delight::{DelightSettings, ObjectResult, direct_irradiance};
+use opal::scene::Scene;
+
+/// Fills `o.ed` of every object; returns the area-weighted mean direct irradiance over the
+/// covered texels of all objects.
+pub(in crate::delight) fn direct_stage(
+    scene: &Scene,
+    objects: &mut [ObjectResult],
+    s: &DelightSettings,
+) -> [f32; 3] {
+    for (j, o) in objects.iter_mut().enumerate() {
+        o.ed =
+            direct_irradiance(scene, &o.atlas, s.direct_samples, s.direct_pilot, s.seed, 0xED00 + j as u64);
+    }
+    scene_average(objects)
+}
+
+/// Area-weighted mean direct irradiance over the covered texels of all objects.
+fn scene_average(objects: &[ObjectResult]) -> [f32; 3] {
+    let mut avg = [0f64; 3];
+    let mut aw = 0f64;
+    for o in objects {
+        for i in 0..o.ed.len() {
+            let t = o.atlas.texel_tri[i];
+            if t != NO_TRI {
+                let a = o.atlas.texel_area[t as usize] as f64;
+                for c in 0..3 {
+                    avg[c] += a * o.ed[i][c] as f64;
+                }
+                aw += a;
+            }
+        }
+    }
+    avg.map(|v| (v / aw.max(1e-30)) as f32)
+}

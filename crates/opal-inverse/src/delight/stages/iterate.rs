@@ -1,0 +1,402 @@
+//! Stage 4 of [`delight`](crate::delight::delight): the light-tracing iterations. Each pass
+//! traces the scene with the current albedos ([`opal::integrator::light_tracer`], importance
+//! transport) for the indirect irradiance `Ei_r` per texel, smoothed within charts over the
+//! texels light reaches ([`smooth_in_charts_masked`]); per object ([`object_pass`]) the error
+//! `e = L − Kd/π (Ed + Ei_r)` relative to `L` with quartile (Tukey 1.5·IQR) outlier rejection,
+//! the update of `Ei` ([`UpdateRule`]) and of `Kd`. After the first pass the luminance maps are
+//! replaced by the super-resolved ones ([`superres_pass`]). Stops below the tolerance or at the
+//! iteration limit. Tests: `tests/delight.rs` (round trip on a small Cornell box, convergence).
+
+// Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
+use super::Inputs;
+use crate::delight::albedo::{fill_unseen, finish_luminance, quartiles, update_kd};
+use crate::delight::atlas::NO_TRI;
+use crate::delight::timing::{StageClock, Timings};
+use crate::delight::views::{PureBuffer, View};
+use crate::delight::{
+    DelightSettings, IterationStats, LightPaths, ObjectResult, UpdateRule, luminance, noise, reached_texels,
+    recovered_desc, smooth_in_charts_masked, superres,
+};
+use opal::error::Result;
+use opal::integrator::light_tracer::{self, IrradianceMaps, IrradianceTarget, LightTraceSettings};
+use opal::math::PI;
+use opal::scene::Scene;
+use rayon::prelude::*;
+
+/// What the iterations leave besides the objects.
+pub(in crate::delight) struct Iterated {
+    /// Statistics per iteration.
+    pub iterations: Vec<IterationStats>,
+    /// The error fell below the tolerance.
+    pub converged: bool,
+    /// Light paths traced in total.
+    pub light_paths: u64,
+}
+
+/// One object's part of an iteration: error statistics over the inliers and the maps.
+struct ObjectPass {
+    /// Max |relative error| over the inliers.
+    max: f64,
+    /// Sum of |relative error| over the inliers.
+    sum: f64,
+    /// Number of inliers.
+    count: usize,
+    /// Number of outliers.
+    outliers: usize,
+    /// Relative luminance error per texel (NaN where not observed).
+    rel: Vec<f32>,
+    /// Tracer's direct irradiance / light-sampled `Ed` (NaN after the first pass).
+    direct_ratio: f64,
+    /// Achieved relative per-texel noise of the raw indirect irradiance.
+    noise: f64,
+    /// Its residuals, corrected for the smoothing window (pooled over the objects).
+    residuals: Vec<f64>,
+}
+
+/// Runs the light-tracing iterations on `objects` (luminance, direct irradiance and initial
+/// albedo set); stage clocks `superres`, `iterations`, `light_tracing`, `iteration_post`.
+pub(in crate::delight) fn iterate(
+    inp: &Inputs,
+    objects: &mut [ObjectResult],
+    views: &[View],
+    pure: &[PureBuffer],
+    warnings: &mut Vec<String>,
+    timings: &mut Timings,
+) -> Result<Iterated> {
+    let (desc, s, log) = (inp.desc, inp.s, inp.log);
+    let targets: Vec<Option<IrradianceTarget>> = (0..desc.shapes.len())
+        .map(|k| {
+            objects.iter().find(|o| o.shape == k).map(|o| IrradianceTarget {
+                width: o.atlas.width,
+                height: o.atlas.height,
+                texel_area: o.atlas.texel_area.clone(),
+            })
+        })
+        .collect();
+    let texels: usize = objects.iter().map(|o| o.atlas.width * o.atlas.height).sum();
+    let paths = s.light_paths.paths(texels);
+    if let LightPaths::TargetNoise(t) = s.light_paths {
+        log(&format!(
+            "light paths per pass: {paths} for {texels} texels at a target per-texel noise of {:.1} %",
+            100.0 * t
+        ));
+    }
+    let mut iterations = Vec::new();
+    let mut converged = false;
+    let mut light_paths = 0;
+    let (mut lt_wall, mut lt_cpu, mut post_wall, mut post_cpu) = (0f64, 0f64, 0f64, 0f64);
+    let t_it = StageClock::start();
+    for k in 1..=s.iterations {
+        let t0 = std::time::Instant::now();
+        let c0 = StageClock::start();
+        let rdesc = recovered_desc(desc, objects);
+        let rscene = Scene::build(&rdesc)?;
+        let lt = LightTraceSettings {
+            paths,
+            batch_size: 1 << 20,
+            max_depth: -1,
+            rr_depth: 5,
+            seed: s.seed.wrapping_add(k as u64),
+            // first-hit irradiance does not depend on the albedos: its diagnostic (`direct_ratio`)
+            // is measured in the first pass only; the method uses the indirect map
+            direct: k == 1,
+        };
+        let out = light_tracer::trace(&rscene, &targets, &lt, &|| {});
+        let (w, c) = c0.elapsed();
+        lt_wall += w;
+        lt_cpu += c;
+        let c0 = StageClock::start();
+        light_paths += out.paths;
+        if out.nonfinite > 0 {
+            warnings
+                .push(format!("iteration {k}: {} non-finite light-tracing deposits dropped", out.nonfinite));
+        }
+        let mut per_object = Vec::new();
+        let mut error_maps = Vec::new();
+        let mut direct_ratio = Vec::new();
+        let (mut gmax, mut gsum, mut gcount) = (0f64, 0f64, 0usize);
+        // objects in parallel (smoothing, error statistics, update and inpainting of each)
+        let post: Vec<ObjectPass> = objects
+            .par_iter_mut()
+            .map(|o| {
+                let m = out.maps[o.shape].as_ref().expect("target");
+                object_pass(o, m, k, s, log)
+            })
+            .collect();
+        let mut texel_noise = Vec::new();
+        let mut all_residuals = Vec::new();
+        for p in post {
+            texel_noise.push(p.noise);
+            all_residuals.extend(p.residuals);
+            gmax = gmax.max(p.max);
+            gsum += p.sum;
+            gcount += p.count;
+            per_object.push((p.max, p.sum / p.count.max(1) as f64, p.outliers));
+            error_maps.push(p.rel);
+            direct_ratio.push(p.direct_ratio);
+        }
+        let (w, c) = c0.elapsed();
+        post_wall += w;
+        post_cpu += c;
+        // multi-view super-resolution once the first pass gives the indirect irradiance: its
+        // prior acts on B / (Ed + Ei), i.e. on the albedo rather than on the lighting
+        if k == 1
+            && let Some(sr) = &s.superres
+        {
+            let t1 = StageClock::start();
+            superres_pass(inp, objects, views, pure, sr);
+            timings.push("superres", t1.elapsed());
+        }
+        let c0 = StageClock::start();
+        // the residuals are already corrected for their windows
+        let texel_noise_all = noise::texel_noise(&all_residuals, usize::MAX);
+        drop(all_residuals);
+        if let LightPaths::TargetNoise(t) = s.light_paths
+            && texel_noise_all > 2.0 * t
+        {
+            warnings.push(format!(
+                "iteration {k}: the per-texel noise of the indirect irradiance is {:.1} %, more than twice \
+                 the target {:.1} % (this scene leaves fewer deposits per path than the calibration)",
+                100.0 * texel_noise_all,
+                100.0 * t
+            ));
+        }
+        fill_unseen(objects);
+        let st = IterationStats {
+            iteration: k,
+            max_rel_error: gmax,
+            mean_rel_error: gsum / gcount.max(1) as f64,
+            per_object,
+            error_maps,
+            seconds: t0.elapsed().as_secs_f64(),
+            direct_ratio,
+            light_paths: paths,
+            texel_noise,
+            texel_noise_all,
+        };
+        log(&format!(
+            "iteration {k}: max rel. error {:.2} %, mean {:.2} % ({:.1} s, {} light paths, per-texel noise {:.1} %)",
+            100.0 * st.max_rel_error,
+            100.0 * st.mean_rel_error,
+            st.seconds,
+            paths,
+            100.0 * st.texel_noise_all
+        ));
+        let done = st.max_rel_error < s.tolerance;
+        iterations.push(st);
+        let (w, c) = c0.elapsed();
+        post_wall += w;
+        post_cpu += c;
+        if done {
+            converged = true;
+            break;
+        }
+    }
+    timings.push("iterations", t_it.elapsed());
+    timings.push("light_tracing", (lt_wall, lt_cpu));
+    timings.push("iteration_post", (post_wall, post_cpu));
+    Ok(Iterated { iterations, converged, light_paths })
+}
+
+/// One object's part of pass `k` with the tracer's maps `m`: the smoothed indirect irradiance,
+/// the direct consistency ratio, the error statistics, the update of `Ei` and `Kd`.
+fn object_pass(
+    o: &mut ObjectResult,
+    m: &IrradianceMaps,
+    k: usize,
+    s: &DelightSettings,
+    log: &(dyn Fn(&str) + Sync),
+) -> ObjectPass {
+    let r = s.smooth.unwrap_or((o.atlas.width / 64).max(1));
+    let cov = &o.atlas.coverage;
+    let ei_raw: Vec<[f32; 3]> =
+        m.indirect.iter().zip(cov).map(|(e, &c)| e.map(|x| (x / c.max(1.0 / 16.0) as f64) as f32)).collect();
+    // over the texels light reaches only: the zeros of enclosed texels (under a box standing on
+    // the object) would darken the contact edges
+    let reach = reached_texels(&o.observed, &o.ed, &ei_raw);
+    let ei_r = smooth_in_charts_masked(&ei_raw, &o.atlas, r, &reach);
+    // achieved noise: residuals of the raw map against the smoothed one on covered reached texels
+    let mask: Vec<bool> = (0..reach.len()).map(|i| reach[i] && o.atlas.texel_tri[i] != NO_TRI).collect();
+    let window = (2 * r + 1) * (2 * r + 1);
+    let corr = 1.0 / (1.0 - 1.0 / window.max(2) as f64).sqrt();
+    let residuals: Vec<f64> =
+        noise::texel_residuals(&ei_raw, &ei_r, &mask).iter().map(|x| x * corr).collect();
+    let noise = noise::texel_noise(&residuals, usize::MAX);
+    let direct_ratio = direct_ratio(o, m);
+    let (rel, e_abs, stats) = error_stats(o, &ei_r);
+    update_ei(o, &ei_r, &e_abs, k, s.update);
+    o.clamped = update_kd(o);
+    if s.debug.print {
+        debug_print(o, log);
+    }
+    let (max, sum, count, outliers) = stats;
+    ObjectPass { max, sum, count, outliers, rel, direct_ratio, noise, residuals }
+}
+
+/// Direct consistency: mean of the tracer's first-hit irradiance over the light-sampled `Ed`
+/// (means over covered texels; first pass only: the later passes deposit no first hits, NaN).
+fn direct_ratio(o: &ObjectResult, m: &IrradianceMaps) -> f64 {
+    let cov = &o.atlas.coverage;
+    let (mut a, mut b) = (0f64, 0f64);
+    if !m.direct.is_empty() {
+        for i in 0..o.ed.len() {
+            if o.atlas.texel_tri[i] != NO_TRI {
+                a += luminance(m.direct[i].map(|x| x as f32)) as f64 / cov[i].max(1.0 / 16.0) as f64;
+                b += luminance(o.ed[i]) as f64;
+            }
+        }
+    }
+    if b > 0.0 { a / b } else { f64::NAN }
+}
+
+/// Error of the current albedo against the luminance with the indirect irradiance `ei_r`:
+/// per texel the relative luminance error (NaN where not observed) and the absolute RGB error
+/// (zero at outliers), and over the inliers (max, sum, count, outliers).
+#[allow(clippy::type_complexity)]
+fn error_stats(o: &ObjectResult, ei_r: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>, (f64, f64, usize, usize)) {
+    let n = o.l.len();
+    let mut rel = vec![f32::NAN; n];
+    let mut vals = Vec::new();
+    let mut e_abs = vec![[0f32; 3]; n];
+    for i in 0..n {
+        if !o.observed[i] {
+            continue;
+        }
+        let lr: [f32; 3] = std::array::from_fn(|c| o.kd[i][c] / PI * (o.ed[i][c] + ei_r[i][c]));
+        e_abs[i] = std::array::from_fn(|c| o.l[i][c] - lr[c]);
+        let y = luminance(o.l[i]);
+        if y > 0.0 {
+            rel[i] = (y - luminance(lr)) / y;
+            vals.push(rel[i] as f64);
+        }
+    }
+    let (mut omax, mut osum, mut ocount, mut outl) = (0f64, 0f64, 0usize, 0usize);
+    if !vals.is_empty() {
+        let (q1, q3) = quartiles(&mut vals);
+        let iqr = q3 - q1;
+        let (lo, hi) = (q1 - 1.5 * iqr, q3 + 1.5 * iqr);
+        for i in 0..n {
+            let r = rel[i] as f64;
+            if r.is_nan() {
+                continue;
+            }
+            if r < lo || r > hi {
+                outl += 1;
+                e_abs[i] = [0.0; 3];
+                continue;
+            }
+            omax = omax.max(r.abs());
+            osum += r.abs();
+            ocount += 1;
+        }
+    }
+    (rel, e_abs, (omax, osum, ocount, outl))
+}
+
+/// Update of `Ei` after pass `k` by the rule.
+fn update_ei(o: &mut ObjectResult, ei_r: &[[f32; 3]], e_abs: &[[f32; 3]], k: usize, rule: UpdateRule) {
+    let n = o.l.len();
+    match rule {
+        UpdateRule::FixedPoint => {
+            // under-relaxed fixed point: the plain map oscillates (period 2) in a closed, bright
+            // room; averaging also halves the Monte-Carlo variance
+            for i in 0..n {
+                for c in 0..3 {
+                    o.ei[i][c] = if k == 1 { ei_r[i][c] } else { 0.5 * (o.ei[i][c] + ei_r[i][c]) };
+                }
+            }
+        }
+        UpdateRule::Paper { alpha0 } => {
+            let alpha = alpha0 / (1.0 + k as f32);
+            for i in 0..n {
+                for c in 0..3 {
+                    o.ei[i][c] = (o.ei[i][c] + alpha * o.kd[i][c] / PI * e_abs[i][c]).max(0.0);
+                }
+            }
+        }
+    }
+}
+
+/// [`DebugSettings::print`](crate::delight::DebugSettings::print): the mean observed `L`, `Ed`,
+/// `Ei`, `Kd` and the clamped texel-channels of an object.
+fn debug_print(o: &ObjectResult, log: &(dyn Fn(&str) + Sync)) {
+    let mut acc = [[0f64; 3]; 4];
+    let mut cnt = 0f64;
+    for i in 0..o.l.len() {
+        if o.observed[i] {
+            cnt += 1.0;
+            for c in 0..3 {
+                acc[0][c] += o.l[i][c] as f64;
+                acc[1][c] += o.ed[i][c] as f64;
+                acc[2][c] += o.ei[i][c] as f64;
+                acc[3][c] += o.kd[i][c] as f64;
+            }
+        }
+    }
+    log(&format!(
+        "  {}: L {:.4?} Ed {:.4?} Ei {:.4?} Kd {:.4?} clamped {}",
+        o.id,
+        acc[0].map(|v| v / cnt),
+        acc[1].map(|v| v / cnt),
+        acc[2].map(|v| v / cnt),
+        acc[3].map(|v| v / cnt),
+        o.clamped
+    ));
+}
+
+/// The super-resolved luminance maps after the first pass (objects in parallel: each solve is
+/// parallel inside too, but its many short parallel loops leave a core idle on small objects;
+/// the result of each object does not depend on the thread count). The shading of the prior is
+/// `Ed + Ei` with `Ei` smoothed further over resolution/16 texels (low-frequency; its
+/// Monte-Carlo noise would otherwise enter the prior's albedo estimate), or the map of
+/// [`DebugSettings::shading`](crate::delight::DebugSettings::shading).
+fn superres_pass(
+    inp: &Inputs,
+    objects: &mut [ObjectResult],
+    views: &[View],
+    pure: &[PureBuffer],
+    sr: &superres::SrSettings,
+) {
+    let (scene, s, log) = (inp.scene, inp.s, inp.log);
+    let msgs: Vec<Option<String>> = objects
+        .par_iter_mut()
+        .map(|o| {
+            let to = std::time::Instant::now();
+            let reach = reached_texels(&o.observed, &o.ed, &o.ei);
+            let ei = smooth_in_charts_masked(&o.ei, &o.atlas, (o.atlas.width / 16).max(1), &reach);
+            let mut shading: Vec<f32> =
+                o.ed.iter().zip(&ei).map(|(d, i)| luminance(std::array::from_fn(|c| d[c] + i[c]))).collect();
+            if let Some(p) = &s.debug.shading {
+                // error analysis: a given irradiance map (e.g. the true one) instead
+                if let Ok(img) = opal::image::read::read_image(p)
+                    && img.data.len() == shading.len()
+                {
+                    shading = img.data.iter().map(|v| luminance(v.0)).collect();
+                }
+            }
+            let (ls, os) = superres::superres_luminance(
+                scene,
+                o.shape as u32,
+                &o.atlas,
+                views,
+                pure,
+                (&o.l, &o.observed),
+                Some(&shading),
+                sr,
+            )?;
+            o.l = ls;
+            o.observed = os;
+            finish_luminance(o);
+            o.clamped = update_kd(o);
+            Some(format!(
+                "super-resolved luminance {}: {:.1} % of texels seen ({:.1} s)",
+                o.id,
+                100.0 * o.seen_fraction,
+                to.elapsed().as_secs_f64()
+            ))
+        })
+        .collect();
+    msgs.iter().flatten().for_each(|m| log(m));
+}
