@@ -32,7 +32,9 @@ pub struct FitNdfArgs {
     pub output: PathBuf,
     /// NDF family: auto (ggx, beckmann, student; a richer model is kept only when it beats
     /// the noise, see docs/fit-ndf.md), beckmann, ggx, student (Student-t: α and tail γ) or
-    /// hybrid (the auto winner plus tabulated nodes of D near θm = 0).
+    /// hybrid (the auto winner plus tabulated nodes of D near θm = 0) or dotted (GGX dots
+    /// covering a fitted fraction of a polished land; auto tries it when the single NDFs miss
+    /// the data by more than twice the noise).
     #[arg(long, default_value = "auto")]
     pub family: String,
     /// Also fit a peak shift δ (the NDF peaks on the cone θm = δ) in every family.
@@ -82,6 +84,10 @@ pub struct FitNdfArgs {
     /// Points below this fraction of their curve's maximum are left out of the objective.
     #[arg(long, default_value_t = 0.01)]
     pub floor: f64,
+    /// Also use points below the floor whose value is at least this many standard errors
+    /// (a dim diffuse lobe beside a specular spike); 0 = the floor alone.
+    #[arg(long, default_value_t = 0.0)]
+    pub min_snr: f64,
     /// Calibration of the measured values: absolute (intensity per unit incident power), global
     /// (one unknown factor), per-incidence (one per incidence) or per-curve (one per incidence
     /// and side); the factors are fitted in closed form (docs/fit-ndf.md).
@@ -131,7 +137,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         "auto" => None,
         f => match Family::parse(f) {
             Some(x) => Some(x),
-            None => bail!("--family: must be auto, beckmann, ggx, student or hybrid, got {f:?}"),
+            None => bail!("--family: must be auto, beckmann, ggx, student, hybrid or dotted, got {f:?}"),
         },
     };
     if family == Some(Family::Hybrid) && a.hybrid_nodes == 0 {
@@ -212,6 +218,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         },
         scale: ScaleSetup { mode: scale_mode, prior: a.scale_prior },
         rel_error,
+        min_snr: (a.min_snr > 0.0).then_some(a.min_snr),
     };
     let problem = Problem::new(measured, setup).map_err(|e| anyhow!("{e}"))?;
     Ok((problem, opts))
