@@ -455,6 +455,9 @@ fn write_curves_csv(path: &Path, p: &Problem, ev: &Evaluation) -> Result<()> {
     })
 }
 
+/// Relative standard error above which a simulated value is not drawn in the curve plots.
+const RESOLVED: f64 = 0.3;
+
 fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<()> {
     let incs = p.measured.incidences();
     let mut panels = Vec::new();
@@ -472,18 +475,47 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
             let label = format!("{}°", (c.incidence.to_degrees() * 100.0).round() / 100.0);
             let meas: Vec<(f64, f64)> = (0..c.value.len()).map(|k| (deg(k), c.value[k])).collect();
             let idx = p.detector_indices(ci);
-            let fit: Vec<(f64, f64)> = (0..c.value.len()).map(|k| (deg(k), r.value[idx[k]])).collect();
+            // the fitted curve only where the simulation resolves it (relative standard error
+            // ≤ RESOLVED): elsewhere a few photons make a noisy floor that looks like a misfit;
+            // the gaps are left open
+            let resolved = |k: usize| {
+                let (v, se) = (r.value[idx[k]], r.value_stderr[idx[k]]);
+                v > 0.0 && se <= RESOLVED * v
+            };
+            let mut segments: Vec<Vec<(f64, f64)>> = Vec::new();
+            for k in 0..c.value.len() {
+                if !resolved(k) {
+                    continue;
+                }
+                match segments.last_mut() {
+                    Some(sg) if k > 0 && resolved(k - 1) => sg.push((deg(k), r.value[idx[k]])),
+                    _ => segments.push(vec![(deg(k), r.value[idx[k]])]),
+                }
+            }
             let floor = p.setup.floor_rel * c.max();
+            let used = |k: usize| {
+                let m = c.value[k];
+                m > 0.0
+                    && (m >= floor
+                        || p.setup.min_snr.is_some_and(|z| c.stderr[k] > 0.0 && m >= z * c.stderr[k]))
+            };
             let rel: Vec<(f64, f64)> = (0..c.value.len())
-                .filter(|&k| c.value[k] > 0.0 && c.value[k] >= floor)
+                .filter(|&k| used(k))
                 .map(|k| (deg(k), (r.value[idx[k]] - c.value[k]) / c.value[k]))
                 .collect();
             series.push(Series { name: format!("{label} measured"), points: meas, color, dashed: false });
-            series.push(Series { name: format!("{label} fitted"), points: fit, color, dashed: true });
+            for (i, sg) in segments.into_iter().enumerate() {
+                let name = if i == 0 { format!("{label} fitted") } else { String::new() };
+                series.push(Series { name, points: sg, color, dashed: true });
+            }
             res_series.push(Series { name: label, points: rel, color, dashed: false });
         }
         panels.push(LinePlot {
-            title: format!("side {} — solid measured, dashed {title}", side.label()),
+            title: format!(
+                "side {} — solid measured, dashed {title} (gaps: simulation unresolved, σ > {:.0} %)",
+                side.label(),
+                100.0 * RESOLVED
+            ),
             x_label: "detector angle (deg)".into(),
             y_label: "I / P_in (1/sr)".into(),
             log_y: true,

@@ -24,8 +24,8 @@ pub enum Family {
     /// The best analytic model plus a piecewise-linear table of D over θm ∈ [0, θK]
     /// (`Profile::Hybrid`).
     Hybrid,
-    /// Dotted face: GGX dots of roughness α covering a fraction f of a polished land (area
-    /// mixture, `opal::gonio::Face::Dotted`); parameters α and f.
+    /// Dotted face: dots of roughness α (base shape GGX or Beckmann) covering a fraction f of
+    /// a polished land (area mixture, `opal::gonio::Face::Dotted`); parameters α and f.
     Dotted,
 }
 
@@ -214,7 +214,7 @@ impl Model {
     /// Short description (`student α=0.2013 γ=5.10 δ=9.8° nodes=2`).
     pub fn describe(&self) -> String {
         let mut s = format!("{} α={:.4}", self.family.name(), self.alpha);
-        if self.family == Family::Hybrid {
+        if matches!(self.family, Family::Hybrid | Family::Dotted) {
             s.push_str(&format!(" base={}", self.base.name()));
         }
         if let Some(g) = self.gamma {

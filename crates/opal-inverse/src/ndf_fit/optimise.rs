@@ -256,15 +256,17 @@ impl Problem {
         self.fit_coords(start, &coords, step_scale)
     }
 
-    /// A starting point for a dotted model: the best of a coarse grid (α ∈ {0.08, 0.15, 0.3,
-    /// 0.6} × coverage ∈ {0.1, 0.3, 0.6}, objective at the coarse stage). The spike of the
-    /// polished land dominates the measured lobe width, so the single-NDF guess from the
-    /// HWHM says nothing about the dots; 12 coarse simulations bracket them.
-    pub fn dotted_start(&self) -> opal::Result<Model> {
+    /// A starting point for a dotted model whose dots have the NDF shape `base` (GGX or
+    /// Beckmann): the best of a coarse grid (α ∈ {0.08, 0.15, 0.3, 0.6} × coverage ∈ {0.1, 0.3,
+    /// 0.6}, objective at the coarse stage). The spike of the polished land dominates the
+    /// measured lobe width, so the single-NDF guess from the HWHM says nothing about the dots;
+    /// 12 coarse simulations bracket them.
+    pub fn dotted_start(&self, base: Family) -> opal::Result<Model> {
         let mut best: Option<(f64, Model)> = None;
         for alpha in [0.08, 0.15, 0.3, 0.6] {
             for f in [0.1, 0.3, 0.6] {
                 let mut m = Model::new(Family::Dotted, alpha);
+                m.base = base;
                 m.coverage = Some(f);
                 let (o, _) = self.objective(&m, Stage::Coarse)?;
                 if best.as_ref().is_none_or(|b| o < b.0) {
