@@ -49,6 +49,7 @@ pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
             "dielectric",
             "tabulated",
             "roughdielectric",
+            "blendbsdf",
         ],
     ),
     ("texture", &["bitmap"]),
