@@ -483,13 +483,13 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
                 v > 0.0 && se <= RESOLVED * v
             };
             let mut segments: Vec<Vec<(f64, f64)>> = Vec::new();
-            for k in 0..c.value.len() {
+            for (k, &ik) in idx.iter().enumerate().take(c.value.len()) {
                 if !resolved(k) {
                     continue;
                 }
                 match segments.last_mut() {
-                    Some(sg) if k > 0 && resolved(k - 1) => sg.push((deg(k), r.value[idx[k]])),
-                    _ => segments.push(vec![(deg(k), r.value[idx[k]])]),
+                    Some(sg) if k > 0 && resolved(k - 1) => sg.push((deg(k), r.value[ik])),
+                    _ => segments.push(vec![(deg(k), r.value[ik])]),
                 }
             }
             let floor = p.setup.floor_rel * c.max();
