@@ -512,7 +512,7 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
         }
         panels.push(LinePlot {
             title: format!(
-                "side {} — solid measured, dashed {title} (gaps: simulation unresolved, σ > {:.0} %)",
+                "side {}: solid measured, dashed fitted (gaps: σ > {:.0} %)",
                 side.label(),
                 100.0 * RESOLVED
             ),
@@ -523,7 +523,7 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
             hline: None,
         });
         res_panels.push(LinePlot {
-            title: format!("side {}: (fitted − measured)/measured", side.label()),
+            title: format!("side {}: (fitted − measured)/measured, {title}", side.label()),
             x_label: "detector angle (deg)".into(),
             y_label: "relative residual".into(),
             log_y: false,
