@@ -932,3 +932,38 @@ fn zero_area_triangles_are_reported() {
     let w = &scene.warnings[0];
     assert!(w.contains("panel") && w.contains("1 of 3 triangles") && w.contains("zero area"), "{w}");
 }
+
+#[test]
+fn blendbsdf_is_a_dotted_face() {
+    use opal::bsdf::Bxdfs;
+    let d = ok(r#"<shape type="rectangle"><bsdf type="blendbsdf"><float name="weight" value="0.35"/>
+        <bsdf type="dielectric"><float name="int_ior" value="1.52"/><float name="ext_ior" value="1"/></bsdf>
+        <bsdf type="roughdielectric"><string name="distribution" value="ggx"/><float name="alpha" value="0.3"/>
+          <float name="int_ior" value="1.52"/><float name="ext_ior" value="1"/></bsdf>
+        </bsdf></shape>"#);
+    match &d.shapes[0].bsdf {
+        BsdfDesc::Lobe(Bxdfs::Dotted(b)) => {
+            assert_eq!(b.coverage, 0.35);
+            assert!(matches!(*b.a, Bxdfs::RoughDielectric(_)) && matches!(*b.b, Bxdfs::SmoothDielectric(_)));
+            assert!((b.eta() - 1.52).abs() < 1e-6);
+        }
+        other => panic!("{other:?}"),
+    }
+    // weight outside [0, 1], one nested bsdf, a non-interface, different indices
+    let (_, m) = err_body(
+        r#"<shape type="rectangle"><bsdf type="blendbsdf"><float name="weight" value="1.5"/><bsdf type="dielectric"/><bsdf type="dielectric"/></bsdf></shape>"#,
+    );
+    assert!(m.contains("weight"), "{m}");
+    let (_, m) = err_body(
+        r#"<shape type="rectangle"><bsdf type="blendbsdf"><bsdf type="dielectric"/></bsdf></shape>"#,
+    );
+    assert!(m.contains("exactly two"), "{m}");
+    let (_, m) = err_body(
+        r#"<shape type="rectangle"><bsdf type="blendbsdf"><bsdf type="dielectric"/><bsdf type="diffuse"/></bsdf></shape>"#,
+    );
+    assert!(m.contains("exactly two"), "{m}");
+    let (_, m) = err_body(
+        r#"<shape type="rectangle"><bsdf type="blendbsdf"><bsdf type="dielectric"/><bsdf type="dielectric"><float name="int_ior" value="1.3"/></bsdf></bsdf></shape>"#,
+    );
+    assert!(m.contains("same index"), "{m}");
+}

@@ -36,7 +36,9 @@ pub struct FitNdfArgs {
     pub output: PathBuf,
     /// NDF family: auto (ggx, beckmann, student; a richer model is kept only when it beats
     /// the noise, see docs/fit-ndf.md), beckmann, ggx, student (Student-t: α and tail γ) or
-    /// hybrid (the auto winner plus tabulated nodes of D near θm = 0).
+    /// hybrid (the auto winner plus tabulated nodes of D near θm = 0) or dotted (GGX dots
+    /// covering a fitted fraction of a polished land; auto tries it when the single NDFs miss
+    /// the data by more than twice the noise).
     #[arg(long, default_value = "auto")]
     pub family: String,
     /// Also fit a peak shift δ (the NDF peaks on the cone θm = δ) in every family.
@@ -86,6 +88,10 @@ pub struct FitNdfArgs {
     /// Points below this fraction of their curve's maximum are left out of the objective.
     #[arg(long, default_value_t = 0.01)]
     pub floor: f64,
+    /// Also use points below the floor whose value is at least this many standard errors
+    /// (a dim diffuse lobe beside a specular spike); 0 = the floor alone.
+    #[arg(long, default_value_t = 0.0)]
+    pub min_snr: f64,
     /// Calibration of the measured values: absolute (intensity per unit incident power), global
     /// (one unknown factor), per-incidence (one per incidence) or per-curve (one per incidence
     /// and side); the factors are fitted in closed form (docs/fit-ndf.md).
@@ -147,7 +153,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         "auto" => None,
         f => match Family::parse(f) {
             Some(x) => Some(x),
-            None => bail!("--family: must be auto, beckmann, ggx, student or hybrid, got {f:?}"),
+            None => bail!("--family: must be auto, beckmann, ggx, student, hybrid or dotted, got {f:?}"),
         },
     };
     if family == Some(Family::Hybrid) && a.hybrid_nodes == 0 {
@@ -226,6 +232,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         },
         scale: ScaleSetup { mode: scale_mode, prior: a.scale_prior },
         rel_error,
+        min_snr: (a.min_snr > 0.0).then_some(a.min_snr),
     };
     let problem = Problem::new(measured, setup).map_err(|e| anyhow!("{e}"))?;
     Ok((problem, opts))
@@ -493,6 +500,9 @@ fn plot_points(p: &Problem, c: &opal_inverse::measured::Curve) -> Vec<(usize, f6
     v
 }
 
+/// Relative standard error above which a simulated value is not drawn in the curve plots.
+const RESOLVED: f64 = 0.3;
+
 fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<()> {
     let incs = p.measured.incidences();
     let mut panels = Vec::new();
@@ -510,19 +520,50 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
             let label = format!("{}°", (c.incidence.to_degrees() * 100.0).round() / 100.0);
             let meas: Vec<(f64, f64)> = ks.iter().map(|&(k, x)| (x, c.value[k])).collect();
             let idx = p.detector_indices(ci);
-            let fit: Vec<(f64, f64)> = ks.iter().map(|&(k, x)| (x, r.value[idx[k]])).collect();
+            // the fitted curve only where the simulation resolves it (relative standard error
+            // ≤ RESOLVED): elsewhere a few photons make a noisy floor that looks like a misfit;
+            // the gaps are left open
+            let resolved = |k: usize| {
+                let (v, se) = (r.value[idx[k]], r.value_stderr[idx[k]]);
+                v > 0.0 && se <= RESOLVED * v
+            };
+            let mut segments: Vec<Vec<(f64, f64)>> = Vec::new();
+            let mut prev_resolved = false;
+            for &(k, x) in &ks {
+                let ok = resolved(k);
+                if ok {
+                    match segments.last_mut() {
+                        Some(sg) if prev_resolved => sg.push((x, r.value[idx[k]])),
+                        _ => segments.push(vec![(x, r.value[idx[k]])]),
+                    }
+                }
+                prev_resolved = ok;
+            }
             let floor = p.setup.floor_rel * c.max();
+            let used = |k: usize| {
+                let m = c.value[k];
+                m > 0.0
+                    && (m >= floor
+                        || p.setup.min_snr.is_some_and(|z| c.stderr[k] > 0.0 && m >= z * c.stderr[k]))
+            };
             let rel: Vec<(f64, f64)> = ks
                 .iter()
-                .filter(|&&(k, _)| c.value[k] > 0.0 && c.value[k] >= floor)
+                .filter(|&&(k, _)| used(k))
                 .map(|&(k, x)| (x, (r.value[idx[k]] - c.value[k]) / c.value[k]))
                 .collect();
             series.push(Series { name: format!("{label} measured"), points: meas, color, dashed: false });
-            series.push(Series { name: format!("{label} fitted"), points: fit, color, dashed: true });
+            for (i, sg) in segments.into_iter().enumerate() {
+                let name = if i == 0 { format!("{label} fitted") } else { String::new() };
+                series.push(Series { name, points: sg, color, dashed: true });
+            }
             res_series.push(Series { name: label, points: rel, color, dashed: false });
         }
         panels.push(LinePlot {
-            title: format!("side {} — solid measured, dashed {title}", side.label()),
+            title: format!(
+                "side {}: solid measured, dashed fitted (gaps: σ > {:.0} %)",
+                side.label(),
+                100.0 * RESOLVED
+            ),
             x_label: "detector angle (deg)".into(),
             y_label: "I / P_in (1/sr)".into(),
             log_y: true,
@@ -530,7 +571,7 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
             hline: None,
         });
         res_panels.push(LinePlot {
-            title: format!("side {}: (fitted − measured)/measured", side.label()),
+            title: format!("side {}: (fitted − measured)/measured, {title}", side.label()),
             x_label: "detector angle (deg)".into(),
             y_label: "relative residual".into(),
             log_y: false,

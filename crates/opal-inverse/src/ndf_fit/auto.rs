@@ -1,5 +1,6 @@
 //! The whole fit ([`fit`]): the one-parameter families, Student-t from the better of them,
-//! hybrid nodes on top of the kept analytic model, every candidate re-simulated with the
+//! the dotted model (GGX or Beckmann dots on a polished land, each from a coarse grid start,
+//! the better at the check seed kept), hybrid nodes on top of the kept analytic model, every candidate re-simulated with the
 //! independent check seed and kept or rejected by the selection rule; what it fits
 //! ([`FitOptions`]) and what it found ([`FitReport`]).
 //!
@@ -8,12 +9,19 @@
 use super::{Comparison, Evaluation, Family, FamilyFit, Model, Problem, check_seed, hybrid_spacing};
 use opal::bsdf::microfacet::Ndfs;
 
+/// `auto` fits the dotted model when the kept single-NDF model's check rms exceeds this many
+/// times its noise.
+pub const DOTTED_TRIGGER: f64 = 2.0;
+
 /// What [`fit`] fits.
 #[derive(Clone, Debug, Default)]
 pub struct FitOptions {
-    /// `None` = auto (GGX, Beckmann, Student-t; the selection rule keeps one); `Some(Ggx |
-    /// Beckmann)` = that family only; `Some(Student)` = GGX and Beckmann, then Student-t from
-    /// the better one (kept whatever the rule says); `Some(Hybrid)` = auto, then hybrid nodes.
+    /// `None` = auto (GGX, Beckmann, Student-t, and dotted when they miss the data by more than
+    /// [`DOTTED_TRIGGER`] × the noise; the selection rule keeps one);
+    /// `Some(Ggx | Beckmann)` = that family only; `Some(Student)` = GGX and Beckmann, then
+    /// Student-t from the better one (kept whatever the rule says); `Some(Hybrid)` = auto
+    /// without dotted, then hybrid nodes; `Some(Dotted)` = auto, the dotted model kept whatever
+    /// the rule says.
     pub family: Option<Family>,
     /// Fit a peak shift δ in every family.
     pub shift: bool,
@@ -94,7 +102,7 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
     let mut best = (0..cands.len())
         .min_by(|&a, &b| cands[a].check.chi2.total_cmp(&cands[b].check.chi2))
         .expect("at least one family");
-    if matches!(opts.family, None | Some(Family::Student) | Some(Family::Hybrid)) {
+    if matches!(opts.family, None | Some(Family::Student) | Some(Family::Hybrid) | Some(Family::Dotted)) {
         let b = &cands[best].fit.model;
         let mut m = b.clone();
         m.family = Family::Student;
@@ -112,6 +120,34 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
         decisions.push(Decision { simple: best, rich: si, comparison });
         if accepted || opts.family == Some(Family::Student) {
             best = si;
+        }
+    }
+    // auto tries the dotted model only when the kept model misses the data by more than twice
+    // the noise (a face rough all over is fitted within noise by one NDF and keeps its fit and
+    // its run time)
+    let misfit = cands[best].check.rms > DOTTED_TRIGGER * cands[best].check.noise;
+    if opts.family == Some(Family::Dotted) || (opts.family.is_none() && misfit) {
+        // GGX and Beckmann dots, the better at the check seed goes on to the rule
+        let mut dotted = Vec::new();
+        for base in Family::ALL {
+            let fit = problem.fit_model(&problem.dotted_start(base)?, 0.5)?;
+            let check = problem.check_fit(&fit)?;
+            cands.push(Candidate { fit, check });
+            dotted.push(cands.len() - 1);
+        }
+        let di = *dotted
+            .iter()
+            .min_by(|&&a, &&b| cands[a].check.chi2.total_cmp(&cands[b].check.chi2))
+            .expect("two dotted fits");
+        // f → 1 is the GGX model: the dotted model nests GGX with one more parameter (f); a
+        // kept Student-t model has as many parameters, and the rule still asks for one
+        // parameter's worth of improvement
+        let k = cands[di].fit.parameter_count().saturating_sub(cands[best].fit.parameter_count()).max(1);
+        let comparison = problem.compare(&cands[best].check, &cands[di].check, k);
+        let accepted = comparison.accepted;
+        decisions.push(Decision { simple: best, rich: di, comparison });
+        if accepted || opts.family == Some(Family::Dotted) {
+            best = di;
         }
     }
     if opts.family == Some(Family::Hybrid) {
@@ -138,10 +174,16 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
         }
     }
     // a rejected hybrid step that did not converge does not matter (the rule stopped there)
-    let converged = cands
-        .iter()
-        .enumerate()
-        .all(|(i, c)| c.fit.converged || (i != best && c.fit.model.family == Family::Hybrid));
+    // a kept dotted model needs its own convergence only: the single-NDF fits it replaced miss
+    // the data by more than twice the noise (hence the dotted step), and on a spike + lobe their
+    // one-parameter searches often end at the iteration limit without mattering
+    let converged = if cands[best].fit.model.family == Family::Dotted {
+        cands[best].fit.converged
+    } else {
+        cands.iter().enumerate().all(|(i, c)| {
+            c.fit.converged || (i != best && matches!(c.fit.model.family, Family::Hybrid | Family::Dotted))
+        })
+    };
     Ok(FitReport {
         candidates: cands,
         best,

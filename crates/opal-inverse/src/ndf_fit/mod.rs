@@ -66,8 +66,8 @@ mod optimise;
 mod scale;
 mod selection;
 
-pub use auto::{Candidate, Decision, FitOptions, FitReport, fit};
-pub use model::{Family, Model, STUDENT_GAMMA_START, hybrid_spacing};
+pub use auto::{Candidate, DOTTED_TRIGGER, Decision, FitOptions, FitReport, fit};
+pub use model::{DOTTED_COVERAGE_START, Family, Model, STUDENT_GAMMA_START, hybrid_spacing};
 pub use optimise::{FamilyFit, fit_families};
 pub use scale::{ScaleFit, ScaleGroup, ScaleMode, ScaleSetup};
 pub use selection::{Comparison, Z99, chi2_q99};
@@ -144,6 +144,11 @@ pub struct FitSetup {
     /// errors, e.g. normalised to 1 at the peak): [`Problem::new`] replaces each point's
     /// standard error σ by `sqrt(σ² + (rel_error · value)²)`. 0 = the file's errors only.
     pub rel_error: f64,
+    /// Noise-based point selection: when `Some(z)`, a point below `floor_rel` of its curve's
+    /// maximum is still used when its value is at least z of its standard errors (a dim
+    /// diffuse lobe measured well above its noise, beside a bright specular spike). `None`:
+    /// `floor_rel` alone.
+    pub min_snr: Option<f64>,
 }
 
 impl FitSetup {
@@ -317,7 +322,8 @@ impl Problem {
                 };
                 idx.push(det);
                 let m = c.value[k];
-                if setup.fit_on.uses(c.side) && m > 0.0 && m >= floor {
+                let significant = setup.min_snr.is_some_and(|z| c.stderr[k] > 0.0 && m >= z * c.stderr[k]);
+                if setup.fit_on.uses(c.side) && m > 0.0 && (m >= floor || significant) {
                     points.push(Point { inc, det, m, sm: c.stderr[k], curve, group: None });
                 }
             }
@@ -417,9 +423,30 @@ impl Problem {
         p
     }
 
+    /// The plate with `model`'s face (rough, or dotted) as its rough face.
+    pub fn plate_with_model(&self, model: &Model) -> opal::Result<Plate> {
+        let mut p = self.setup.plate.clone();
+        let f = model.face(self.setup.scattering)?;
+        if self.setup.rough_front {
+            p.front = f;
+        } else {
+            p.back = f;
+        }
+        Ok(p)
+    }
+
     /// Simulates with `ndf` using `seed` and `photons` (the setup's for the objective).
     pub fn simulate(&self, ndf: Ndfs, seed: u64, photons: u64) -> opal::Result<GonioResult> {
-        let plate = self.plate_with(ndf);
+        self.run(&self.plate_with(ndf), seed, photons)
+    }
+
+    /// Simulates `model` (its NDF, and its coverage for a dotted face) using `seed` and
+    /// `photons`.
+    pub fn simulate_model(&self, model: &Model, seed: u64, photons: u64) -> opal::Result<GonioResult> {
+        self.run(&self.plate_with_model(model)?, seed, photons)
+    }
+
+    fn run(&self, plate: &Plate, seed: u64, photons: u64) -> opal::Result<GonioResult> {
         let coarse = self.gonio_coarse.as_ref().filter(|g| g.setup().photons == photons);
         {
             let mut e = self.evals.lock().expect("no panic while counting");
@@ -427,16 +454,16 @@ impl Problem {
         }
         if seed == self.setup.seed {
             if photons == self.setup.photons {
-                return self.gonio.run_plate(&plate);
+                return self.gonio.run_plate(plate);
             }
             if let Some(g) = coarse {
-                return g.run_plate(&plate);
+                return g.run_plate(plate);
             }
         }
         let mut s = self.gonio.setup().clone();
         s.seed = seed;
         s.photons = photons;
-        Gonio::new(s)?.run_plate(&plate)
+        Gonio::new(s)?.run_plate(plate)
     }
 
     fn stage_photons(&self, stage: Stage) -> u64 {
@@ -504,9 +531,32 @@ impl Problem {
     /// With calibration factors ([`ScaleMode`]) s and σs are the simulated value and error
     /// times the point's factor, each factor the closed-form best one for this simulation
     /// (returned beside the objective), plus the prior's penalty when there is one.
-    fn objective(&self, ndf: Ndfs, stage: Stage) -> opal::Result<(f64, ScaleFit)> {
-        let res = self.simulate(ndf, self.setup.seed, self.stage_photons(stage))?;
+    ///
+    /// A dotted model (coverage fitted) uses the noise-weighted form instead, see
+    /// [`Problem::objective_chi2`].
+    fn objective(&self, model: &Model, stage: Stage) -> opal::Result<(f64, ScaleFit)> {
+        let res = self.simulate_model(model, self.setup.seed, self.stage_photons(stage))?;
+        if model.coverage.is_some() && self.groups.is_empty() {
+            return Ok((self.objective_chi2(&res), ScaleFit::none()));
+        }
         Ok(self.objective_of(&res))
+    }
+
+    /// Noise-weighted objective (a Gaussian log-likelihood of the measured values given their
+    /// standard errors): `Σ ((s − m)² − σs²)/σm² / N` over the used points, with σm the
+    /// measured standard error (floored at 10⁻³ m so exact data do not divide by zero). Every
+    /// point counts by its own precision, so a specular spike and a lobe 100× dimmer both
+    /// weigh in (the Pearson form weights by m and ignores the lobe); subtracting σs² removes
+    /// the simulation's noise bias as in the Pearson form.
+    fn objective_chi2(&self, res: &GonioResult) -> f64 {
+        let mut acc = 0.0;
+        for p in &self.points {
+            let r = &res.incidences[p.inc];
+            let (s, ss) = (r.value[p.det], r.value_stderr[p.det]);
+            let sm = p.sm.max(1e-3 * p.m);
+            acc += ((s - p.m).powi(2) - ss * ss) / (sm * sm);
+        }
+        acc / self.points.len() as f64
     }
 
     /// The objective of simulation `res` and its calibration factors (see `objective`).
@@ -533,8 +583,18 @@ impl Problem {
 
     /// The natural unit of the objective at a simulation: Σ (σs² + σm²)/m / Σ m (the
     /// objective's value when every residual is one standard error; σs times the point's
-    /// best factor).
-    fn objective_noise(&self, res: &GonioResult) -> f64 {
+    /// best factor), or for a dotted model (`dotted`, absolute values) the noise-weighted
+    /// form's, `Σ (σs² + σm²)/σm² / N`.
+    pub(super) fn objective_noise_for(&self, res: &GonioResult, dotted: bool) -> f64 {
+        if dotted && self.groups.is_empty() {
+            let mut acc = 0.0;
+            for p in &self.points {
+                let ss = res.incidences[p.inc].value_stderr[p.det];
+                let sm = p.sm.max(1e-3 * p.m);
+                acc += (ss * ss + sm * sm) / (sm * sm);
+            }
+            return acc / self.points.len() as f64;
+        }
         let fit = self.fit_scale(res);
         let (mut acc, mut wsum) = (0.0, 0.0);
         for p in &self.points {
@@ -548,7 +608,7 @@ impl Problem {
     /// Re-simulates `model` with the independent check seed at full photons (with calibration
     /// factors: the best ones for this simulation).
     pub fn check(&self, model: &Model) -> opal::Result<Evaluation> {
-        let res = self.simulate(model.ndf()?, check_seed(self.setup.seed), self.setup.photons)?;
+        let res = self.simulate_model(model, check_seed(self.setup.seed), self.setup.photons)?;
         let fit = self.fit_scale(&res);
         Ok(self.evaluate(self.apply_scale(res, &fit)))
     }
@@ -556,7 +616,7 @@ impl Problem {
     /// Re-simulates a fitted model with the independent check seed at full photons, its
     /// simulated values times the factors found by the fit (`fit.scale`).
     pub fn check_fit(&self, fit: &FamilyFit) -> opal::Result<Evaluation> {
-        let res = self.simulate(fit.model.ndf()?, check_seed(self.setup.seed), self.setup.photons)?;
+        let res = self.simulate_model(&fit.model, check_seed(self.setup.seed), self.setup.photons)?;
         Ok(self.evaluate(self.apply_scale(res, &fit.scale)))
     }
 }

@@ -1,5 +1,5 @@
 //! NDF models: the analytic families ([`Family`]), the full parameter set of one model
-//! ([`Model`]: α, Student-t γ, shift δ, hybrid table) and the bounded coordinates the optimisers
+//! ([`Model`]: α, Student-t γ, shift δ, hybrid table, dotted coverage f) and the bounded coordinates the optimisers
 //! move (`Coord`, with clamping and the penalty that walks a simplex back into bounds); the
 //! hybrid node spacing ([`hybrid_spacing`]).
 //!
@@ -9,6 +9,7 @@
 //! Tests: `tests.rs` (models build the right NDF, coordinates are clamped and penalised).
 
 use opal::bsdf::microfacet::{Beckmann, Ggx, Ndf, Ndfs, Profile};
+use opal::gonio::{Face, Scattering};
 use opal::math::Vec3;
 /// NDF families.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -23,6 +24,9 @@ pub enum Family {
     /// The best analytic model plus a piecewise-linear table of D over θm ∈ [0, θK]
     /// (`Profile::Hybrid`).
     Hybrid,
+    /// Dotted face: dots of roughness α (base shape GGX or Beckmann) covering a fraction f of
+    /// a polished land (area mixture, `opal::gonio::Face::Dotted`); parameters α and f.
+    Dotted,
 }
 
 /// Tail exponent γ a Student-t model starts from when nothing better is known.
@@ -42,6 +46,7 @@ impl Family {
             Family::Ggx => "ggx",
             Family::Student => "student",
             Family::Hybrid => "hybrid",
+            Family::Dotted => "dotted",
         }
     }
 
@@ -52,6 +57,7 @@ impl Family {
             "ggx" | "cauchy" | "trowbridge-reitz" => Some(Family::Ggx),
             "student" | "student-t" => Some(Family::Student),
             "hybrid" => Some(Family::Hybrid),
+            "dotted" => Some(Family::Dotted),
             _ => None,
         }
     }
@@ -67,7 +73,7 @@ impl Family {
     /// t² = (γ − 1)(2^(1/γ) − 1)).
     pub(super) fn half_max_slope(self) -> f64 {
         match self {
-            Family::Ggx | Family::Hybrid => (2f64.sqrt() - 1.0).sqrt(),
+            Family::Ggx | Family::Hybrid | Family::Dotted => (2f64.sqrt() - 1.0).sqrt(),
             Family::Beckmann => 2f64.ln().sqrt(),
             Family::Student => {
                 let g = STUDENT_GAMMA_START;
@@ -94,12 +100,18 @@ pub struct Model {
     /// Hybrid table: (θ radians, multiplier of the normalised analytic part at θ). The last
     /// node is the anchor (multiplier 1, not fitted) that joins the table to the analytic part.
     pub nodes: Vec<(f64, f64)>,
+    /// Dotted face: fraction f ∈ (0, 1) of the face covered by rough dots carrying this NDF,
+    /// the rest polished (`Some` when f is fitted).
+    pub coverage: Option<f64>,
 }
+
+/// Coverage a dotted model starts from when nothing better is known.
+pub const DOTTED_COVERAGE_START: f64 = 0.5;
 
 impl Model {
     /// The family's default model of roughness `alpha` (no shift, no table).
     pub fn new(family: Family, alpha: f64) -> Model {
-        let base = if family == Family::Hybrid { Family::Ggx } else { family };
+        let base = if matches!(family, Family::Hybrid | Family::Dotted) { Family::Ggx } else { family };
         Model {
             family: if family == Family::Hybrid { base } else { family },
             base,
@@ -107,6 +119,7 @@ impl Model {
             gamma: (base == Family::Student).then_some(STUDENT_GAMMA_START),
             delta: None,
             nodes: Vec::new(),
+            coverage: (family == Family::Dotted).then_some(DOTTED_COVERAGE_START),
         }
     }
 
@@ -115,7 +128,7 @@ impl Model {
         let alpha = self.alpha;
         let b = match self.base {
             Family::Beckmann => Profile::Beckmann { alpha },
-            Family::Ggx | Family::Hybrid => Profile::Ggx { alpha },
+            Family::Ggx | Family::Hybrid | Family::Dotted => Profile::Ggx { alpha },
             Family::Student => Profile::StudentT { alpha, gamma: self.gamma.unwrap_or(STUDENT_GAMMA_START) },
         };
         match self.delta {
@@ -127,7 +140,9 @@ impl Model {
     fn base_ndf(&self) -> opal::Result<Ndfs> {
         match (self.base, self.delta) {
             (Family::Beckmann, None) => Ok(Ndfs::Beckmann(Beckmann::new(self.alpha as f32)?)),
-            (Family::Ggx | Family::Hybrid, None) => Ok(Ndfs::Ggx(Ggx::new(self.alpha as f32)?)),
+            (Family::Ggx | Family::Hybrid | Family::Dotted, None) => {
+                Ok(Ndfs::Ggx(Ggx::new(self.alpha as f32)?))
+            }
             _ => Ndfs::numeric(self.base_profile()),
         }
     }
@@ -147,9 +162,22 @@ impl Model {
         Ndfs::numeric(Profile::Hybrid { base: Box::new(self.base_profile()), theta, d })
     }
 
+    /// The rough face this model describes: the NDF on the whole face, or (with a coverage)
+    /// dots carrying it on a polished land.
+    pub fn face(&self, scattering: Scattering) -> opal::Result<Face> {
+        let ndf = self.ndf()?;
+        Ok(match self.coverage {
+            Some(f) => Face::dotted(f, ndf, scattering),
+            None => Face::Rough { ndf, scattering },
+        })
+    }
+
     /// Number of fitted parameters.
     pub fn parameter_count(&self) -> usize {
-        1 + self.gamma.is_some() as usize + self.delta.is_some() as usize + self.nodes.len().saturating_sub(1)
+        1 + self.gamma.is_some() as usize
+            + self.delta.is_some() as usize
+            + self.nodes.len().saturating_sub(1)
+            + self.coverage.is_some() as usize
     }
 
     /// Every parameter as JSON (`alpha`, `gamma`, `delta_deg`, `nodes` with θ in degrees, the
@@ -163,6 +191,9 @@ impl Model {
         }
         if let Some(d) = self.delta {
             m.insert("delta_deg".into(), d.to_degrees().into());
+        }
+        if let Some(f) = self.coverage {
+            m.insert("coverage".into(), f.into());
         }
         if !self.nodes.is_empty() {
             let base = self.base_ndf().ok();
@@ -183,7 +214,7 @@ impl Model {
     /// Short description (`student α=0.2013 γ=5.10 δ=9.8° nodes=2`).
     pub fn describe(&self) -> String {
         let mut s = format!("{} α={:.4}", self.family.name(), self.alpha);
-        if self.family == Family::Hybrid {
+        if matches!(self.family, Family::Hybrid | Family::Dotted) {
             s.push_str(&format!(" base={}", self.base.name()));
         }
         if let Some(g) = self.gamma {
@@ -191,6 +222,9 @@ impl Model {
         }
         if let Some(d) = self.delta {
             s.push_str(&format!(" δ={:.2}°", d.to_degrees()));
+        }
+        if let Some(f) = self.coverage {
+            s.push_str(&format!(" coverage={f:.4}"));
         }
         if !self.nodes.is_empty() {
             let k: Vec<String> =
@@ -213,6 +247,8 @@ pub(super) enum Coord {
     DeltaDeg,
     /// ln of the multiplier of hybrid node k ∈ [ln 0.02, ln 50].
     LnScale(usize),
+    /// logit of the dotted coverage f, ln(f/(1 − f)) ∈ [logit 0.002, logit 0.998].
+    LogitCoverage,
 }
 
 impl Coord {
@@ -222,6 +258,7 @@ impl Coord {
             Coord::Q => (0.01, 1.0),
             Coord::DeltaDeg => (0.0, 60.0),
             Coord::LnScale(_) => (0.02f64.ln(), 50f64.ln()),
+            Coord::LogitCoverage => (-(499f64.ln()), 499f64.ln()),
         }
     }
     /// Coarse initial simplex step.
@@ -231,6 +268,7 @@ impl Coord {
             Coord::Q => 0.3,
             Coord::DeltaDeg => 4.0,
             Coord::LnScale(_) => 0.4,
+            Coord::LogitCoverage => 0.6,
         }
     }
     pub(super) fn get(self, m: &Model) -> f64 {
@@ -239,6 +277,10 @@ impl Coord {
             Coord::Q => 2.0 / m.gamma.unwrap_or(STUDENT_GAMMA_START),
             Coord::DeltaDeg => m.delta.unwrap_or(0.0).to_degrees(),
             Coord::LnScale(k) => m.nodes[k].1.ln(),
+            Coord::LogitCoverage => {
+                let f = m.coverage.unwrap_or(DOTTED_COVERAGE_START);
+                (f / (1.0 - f)).ln()
+            }
         }
     }
     fn set(self, m: &mut Model, x: f64) {
@@ -247,6 +289,7 @@ impl Coord {
             Coord::Q => m.gamma = Some(2.0 / x),
             Coord::DeltaDeg => m.delta = Some(x.to_radians()),
             Coord::LnScale(k) => m.nodes[k].1 = x.exp(),
+            Coord::LogitCoverage => m.coverage = Some(1.0 / (1.0 + (-x).exp())),
         }
     }
 }
@@ -274,6 +317,7 @@ impl Model {
         if self.nodes.len() > 1 {
             v.extend(self.nodes[..self.nodes.len() - 1].iter().map(|n| n.1));
         }
+        v.extend(self.coverage);
         v
     }
 }

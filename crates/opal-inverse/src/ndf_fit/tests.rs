@@ -53,6 +53,30 @@ fn coordinates_are_clamped_and_penalised() {
 }
 
 #[test]
+fn dotted_model_face_and_coverage_coordinate() {
+    let m = Model::new(Family::Dotted, 0.3);
+    assert_eq!((m.base, m.coverage), (Family::Ggx, Some(DOTTED_COVERAGE_START)));
+    assert_eq!(m.parameter_count(), 2);
+    assert_eq!(Family::parse("dotted"), Some(Family::Dotted));
+    match m.face(Scattering::Single).unwrap() {
+        Face::Dotted { coverage, dots, land } => {
+            assert_eq!(coverage, 0.5);
+            assert!(matches!(*dots, Face::Rough { ndf: Ndfs::Ggx(_), .. }));
+            assert!(matches!(*land, Face::Polished));
+        }
+        f => panic!("{f:?}"),
+    }
+    assert!(matches!(Model::new(Family::Ggx, 0.3).face(Scattering::Single).unwrap(), Face::Rough { .. }));
+    // logit coordinate: 0 ↔ f = 0.5, clamped to [0.002, 0.998] with a penalty
+    let (a, pen) = apply(&m, &[Coord::LnAlpha, Coord::LogitCoverage], &[0.2f64.ln(), (0.25f64 / 0.75).ln()]);
+    assert!((a.coverage.unwrap() - 0.25).abs() < 1e-12 && pen == 0.0);
+    let (a, pen) = apply(&m, &[Coord::LogitCoverage], &[10.0]);
+    assert!((a.coverage.unwrap() - 0.998).abs() < 1e-9 && pen > 0.0);
+    assert_eq!(a.param_values(), vec![0.3, a.coverage.unwrap()]);
+    assert!(a.describe().contains("coverage=0.9980") && a.params_json()["coverage"].as_f64().is_some());
+}
+
+#[test]
 fn chi2_quantiles() {
     assert_eq!(chi2_q99(1), 6.635);
     // Wilson–Hilferty beyond the table: χ²₀.₉₉(10) = 23.209
@@ -109,6 +133,7 @@ fn scaled_problem(scale: ScaleSetup, times: f64) -> (Problem, GonioResult) {
         coarse_photons: None,
         scale,
         rel_error: 0.0,
+        min_snr: None,
     };
     let p = Problem::new(m, setup).unwrap();
     let res = p.simulate(Ndfs::ggx(0.23), 7, 20_000).unwrap();

@@ -11,7 +11,8 @@
 //! Models: [`lambert`]; method B lobes [`phong`], [`blinn`], [`schlick`], [`lyon`], [`pow16`],
 //! [`conductor`]; method A's rough dielectric interface [`rough_dielectric`] (single
 //! scattering) and [`rough_dielectric_ms`] (multiple scattering), NDFs in [`microfacet`];
-//! [`dielectric`] (smooth, delta lobes), [`tabulated`] (a rough face tabulated from any of
+//! [`dielectric`] (smooth, delta lobes), [`dotted`] (area mixture of two interfaces: rough dots on
+//! a polished land), [`tabulated`] (a rough face tabulated from any of
 //! them, loaded from `.obsdf` files)
 //! (shared machinery in [`lobe`], normalisation expressions in [`normexpr`], names and
 //! constructors in [`registry`]). Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
@@ -19,6 +20,7 @@
 pub mod blinn;
 pub mod conductor;
 pub mod dielectric;
+pub mod dotted;
 pub mod lambert;
 pub mod lobe;
 pub mod lyon;
@@ -37,6 +39,7 @@ use crate::spectrum::Spectrum;
 pub use blinn::Blinn;
 pub use conductor::RoughConductor;
 pub use dielectric::SmoothDielectric;
+pub use dotted::Dotted;
 pub use lambert::Lambert;
 pub use lyon::Lyon;
 pub use phong::Phong;
@@ -129,6 +132,9 @@ pub enum Bxdfs {
     SmoothDielectric(SmoothDielectric),
     /// Tabulated rough dielectric face, both sides (`.obsdf` file, plugin `tabulated`).
     Tabulated(TabulatedBsdf),
+    /// Dotted face: area mixture of two dielectric interfaces (rough dots on a polished or
+    /// second rough land; plugin `dotted`).
+    Dotted(Dotted),
 }
 
 macro_rules! dispatch {
@@ -145,6 +151,7 @@ macro_rules! dispatch {
             Bxdfs::RoughConductor($b) => $e,
             Bxdfs::SmoothDielectric($b) => $e,
             Bxdfs::Tabulated($b) => $e,
+            Bxdfs::Dotted($b) => $e,
         }
     };
 }

@@ -88,6 +88,7 @@ impl FastPlate {
                         Ndfs::Numeric(_) => None,
                     }
                 }
+                Face::Dotted { .. } => None,
             }
         };
         Some(FastPlate {

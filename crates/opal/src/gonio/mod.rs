@@ -92,6 +92,37 @@ pub enum Face {
         /// Scattering model.
         scattering: Scattering,
     },
+    /// Dotted face: a fraction `coverage` of the area is `dots`, the rest `land` (each
+    /// `Polished` or `Rough`, not nested): an area mixture, see [`crate::bsdf::Dotted`]. A
+    /// light-guide plate's dotted face is rough dots on a polished land.
+    Dotted {
+        /// Fraction f ∈ [0, 1] of the face covered by `dots`.
+        coverage: f64,
+        /// The covered fraction (usually rough).
+        dots: Box<Face>,
+        /// The rest (usually polished).
+        land: Box<Face>,
+    },
+}
+
+impl Face {
+    /// Whether any part of the face is rough.
+    pub fn is_rough(&self) -> bool {
+        match self {
+            Face::Polished => false,
+            Face::Rough { .. } => true,
+            Face::Dotted { dots, land, .. } => dots.is_rough() || land.is_rough(),
+        }
+    }
+
+    /// A dotted face of rough dots (`ndf`, `scattering`) covering `coverage` of a polished land.
+    pub fn dotted(coverage: f64, ndf: Ndfs, scattering: Scattering) -> Face {
+        Face::Dotted {
+            coverage,
+            dots: Box::new(Face::Rough { ndf, scattering }),
+            land: Box::new(Face::Polished),
+        }
+    }
 }
 
 /// The sample: a plane-parallel plate.
@@ -183,6 +214,12 @@ enum FaceModel {
     Polished,
     Single(RoughDielectric),
     Multiple(RoughDielectricMs),
+    /// Area mixture: `a` with probability `f`, else `b` (neither is `Dotted`).
+    Dotted {
+        f: f32,
+        a: Box<FaceModel>,
+        b: Box<FaceModel>,
+    },
 }
 
 impl FaceModel {
@@ -201,6 +238,25 @@ impl FaceModel {
                 }
                 Scattering::Multiple => FaceModel::Multiple(RoughDielectricMs::new(ndf.clone(), ior)?),
             },
+            Face::Dotted { coverage, dots, land } => {
+                if !(coverage.is_finite() && (0.0..=1.0).contains(coverage)) {
+                    return Err(crate::Error::invalid(
+                        "coverage",
+                        format!("must be in [0, 1], got {coverage}"),
+                    ));
+                }
+                if matches!(**dots, Face::Dotted { .. }) || matches!(**land, Face::Dotted { .. }) {
+                    return Err(crate::Error::invalid(
+                        "dotted face",
+                        "the dots and the land cannot be dotted again",
+                    ));
+                }
+                FaceModel::Dotted {
+                    f: *coverage as f32,
+                    a: Box::new(FaceModel::new(dots, ior)?),
+                    b: Box::new(FaceModel::new(land, ior)?),
+                }
+            }
         })
     }
 }
@@ -288,7 +344,7 @@ pub fn validate_plate(p: &Plate) -> crate::Result<()> {
             return Err(crate::Error::invalid("radius_mm", format!("must be > 0, got {r}")));
         }
     }
-    let rough = matches!(p.front, Face::Rough { .. }) || matches!(p.back, Face::Rough { .. });
+    let rough = p.front.is_rough() || p.back.is_rough();
     if rough && (p.ior - 1.0).abs() < 1e-4 {
         return Err(crate::Error::invalid("ior", format!("a rough face needs ior ≠ 1, got {}", p.ior)));
     }
@@ -521,46 +577,8 @@ impl Gonio {
             // local frame of the face: +z = outward normal; bottom face = rotation by π about x
             let to_local = |v: Vec3| if top { v } else { Vec3::new(v.x, -v.y, -v.z) };
             let wo = to_local(-d);
-            let wi = match model {
-                FaceModel::Polished => {
-                    let (r, _) = fresnel_dielectric(wo.z, plate.ior as f32);
-                    if rng.next_f32() < r {
-                        Vec3::new(-wo.x, -wo.y, wo.z)
-                    } else {
-                        let (n, eta) = if wo.z > 0.0 {
-                            (Vec3::Z, plate.ior as f32)
-                        } else {
-                            (-Vec3::Z, 1.0 / plate.ior as f32)
-                        };
-                        match crate::math::refract(wo, n, eta) {
-                            Some(t) => t,
-                            None => Vec3::new(-wo.x, -wo.y, wo.z),
-                        }
-                    }
-                }
-                FaceModel::Single(b) => {
-                    let uc = rng.next_f32();
-                    let u = rng.next_2d();
-                    match b.sample_dir(wo, uc, u, TransportMode::Importance) {
-                        Some(s) => {
-                            let w2 = w * s.weight;
-                            acc.lost += (w - w2) as f64;
-                            w = w2;
-                            s.wi
-                        }
-                        None => {
-                            acc.lost += w as f64;
-                            return;
-                        }
-                    }
-                }
-                FaceModel::Multiple(b) => match b.sample_dir(wo, rng) {
-                    Some(wi) => wi,
-                    None => {
-                        acc.lost += w as f64;
-                        return;
-                    }
-                },
+            let Some(wi) = interact(model, plate.ior as f32, wo, None, rng, &mut w, acc) else {
+                return;
             };
             let dn = to_local(wi); // the rotation is an involution
             if !(dn.is_finite() && w.is_finite()) {
@@ -604,6 +622,68 @@ impl Gonio {
             top = !top;
         }
         acc.lost += w as f64;
+    }
+}
+
+/// One interaction with a face in importance mode: the new direction (local frame), the photon
+/// weight updated (what the single-scattering model loses goes to `acc.lost`); `None` when the
+/// photon is lost (its weight is booked). `uc`: the first random number when the caller drew it
+/// already (a dotted face choosing its area), else drawn here — polished: one number (Fresnel
+/// choice), single scattering: three (`uc`, then the visible normal), multiple scattering: its
+/// own stream from `rng`.
+#[inline]
+fn interact(
+    model: &FaceModel,
+    ior: f32,
+    wo: Vec3,
+    uc: Option<f32>,
+    rng: &mut Rng,
+    w: &mut f32,
+    acc: &mut Acc,
+) -> Option<Vec3> {
+    match model {
+        FaceModel::Polished => {
+            let (r, _) = fresnel_dielectric(wo.z, ior);
+            let uc = uc.unwrap_or_else(|| rng.next_f32());
+            Some(if uc < r {
+                Vec3::new(-wo.x, -wo.y, wo.z)
+            } else {
+                let (n, eta) = if wo.z > 0.0 { (Vec3::Z, ior) } else { (-Vec3::Z, 1.0 / ior) };
+                match crate::math::refract(wo, n, eta) {
+                    Some(t) => t,
+                    None => Vec3::new(-wo.x, -wo.y, wo.z),
+                }
+            })
+        }
+        FaceModel::Single(b) => {
+            let uc = uc.unwrap_or_else(|| rng.next_f32());
+            let u = rng.next_2d();
+            match b.sample_dir(wo, uc, u, TransportMode::Importance) {
+                Some(s) => {
+                    let w2 = *w * s.weight;
+                    acc.lost += (*w - w2) as f64;
+                    *w = w2;
+                    Some(s.wi)
+                }
+                None => {
+                    acc.lost += *w as f64;
+                    None
+                }
+            }
+        }
+        FaceModel::Multiple(b) => match b.sample_dir(wo, rng) {
+            Some(wi) => Some(wi),
+            None => {
+                acc.lost += *w as f64;
+                None
+            }
+        },
+        FaceModel::Dotted { f, a, b } => {
+            let u = uc.unwrap_or_else(|| rng.next_f32());
+            // the area choice reuses the number: rescaled, it is the component's first one
+            let (m, ur) = if u < *f { (a, u / f) } else { (b, (u - f) / (1.0 - f)) };
+            interact(m, ior, wo, Some(ur.min(1.0 - f32::EPSILON / 2.0)), rng, w, acc)
+        }
     }
 }
 

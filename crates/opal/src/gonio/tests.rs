@@ -366,3 +366,66 @@ fn simd_and_portable_loops_agree_bit_for_bit() {
     }
     assert!(compared >= 32 || kinds.is_empty());
 }
+
+/// A dotted face with coverage 0 or 1 is its land or its dots, photon for photon (the area
+/// choice reuses the component's first random number unchanged at f = 0 and f = 1).
+#[test]
+fn dotted_face_limits_are_bit_identical() {
+    let g = Gonio::new(setup(&[0.0, 60.0], 20_000, 0.5)).unwrap();
+    let ndf = Ndfs::ggx(0.3);
+    let rough = Face::Rough { ndf: ndf.clone(), scattering: Scattering::Single };
+    let general = g.clone().with_general_loop(true);
+    for entry in [true, false] {
+        let mk =
+            |f: Face| if entry { plate(f, Face::Polished, 0.05) } else { plate(Face::Polished, f, 0.05) };
+        for (cov, same) in [(0.0, Face::Polished), (1.0, rough.clone())] {
+            let d = general.run_plate(&mk(Face::dotted(cov, ndf.clone(), Scattering::Single))).unwrap();
+            let s = general.run_plate(&mk(same)).unwrap();
+            for (x, y) in d.incidences.iter().zip(&s.incidences) {
+                assert_eq!(x.value, y.value, "coverage {cov} entry {entry}");
+                assert_eq!((x.r, x.t, x.lost, x.absorbed), (y.r, y.t, y.lost, y.absorbed));
+            }
+        }
+    }
+}
+
+/// With a strongly absorbing plate only the first interaction with the lit face reaches the R
+/// detectors, so R of a dotted entry face is the area-weighted sum f·R_rough + (1 − f)·R_polished
+/// (within the Monte-Carlo noise); energy is booked (R + T + lost + absorbed = 1), and
+/// multiple-scattering dots lose nothing but the absorbed power.
+#[test]
+fn dotted_face_is_an_area_mixture() {
+    let n = 100_000;
+    let g = Gonio::new(setup(&[0.0, 45.0, 75.0], n, 0.5)).unwrap();
+    let ndf = Ndfs::ggx(0.4);
+    let run = |f: Face| g.run_plate(&plate(f, Face::Polished, 50.0)).unwrap();
+    let cov = 0.35;
+    let d = run(Face::dotted(cov, ndf.clone(), Scattering::Single));
+    let r = run(Face::Rough { ndf: ndf.clone(), scattering: Scattering::Single });
+    let p = run(Face::Polished);
+    for ((x, y), z) in d.incidences.iter().zip(&r.incidences).zip(&p.incidences) {
+        let expect = cov * y.r + (1.0 - cov) * z.r;
+        let s = (expect * (1.0 - expect) / n as f64).sqrt() + (y.r / n as f64).sqrt();
+        assert!((x.r - expect).abs() < 4.0 * s, "θ={}: R {} vs {expect}", x.incidence, x.r);
+        assert!((x.r + x.t + x.lost + x.absorbed - 1.0).abs() < 1e-5);
+        assert_eq!(x.bad_photons, 0);
+    }
+    let ms = Face::dotted(cov, Ndfs::ggx(0.8), Scattering::Multiple);
+    for res in [
+        g.run_plate(&plate(ms.clone(), Face::Polished, 0.0)).unwrap(),
+        g.run_plate(&plate(Face::Polished, ms, 0.0)).unwrap(),
+    ] {
+        for x in &res.incidences {
+            assert!(x.r + x.t >= 0.995, "θ={}: R+T {}", x.incidence, x.r + x.t);
+        }
+    }
+    // refused: coverage outside [0, 1], nested dotted faces
+    let bad = Face::dotted(1.5, ndf.clone(), Scattering::Single);
+    assert!(g.run_plate(&plate(bad, Face::Polished, 0.0)).is_err());
+    let nested = Face::Dotted {
+        coverage: 0.5,
+        dots: Box::new(Face::dotted(0.5, ndf, Scattering::Single)),
+        land: Box::new(Face::Polished),
+    };
+    assert!(g.run_plate(&plate(nested, Face::Polished, 0.0)).is_err());
+}

@@ -54,10 +54,12 @@ impl Material {
         let what = || format!("bsdf of shape '{id}'");
         match inner {
             BsdfDesc::TwoSided(_) => Err(Error::invalid(what(), "twosided inside twosided")),
-            BsdfDesc::Lobe(Bxdfs::SmoothDielectric(_) | Bxdfs::Tabulated(_)) if two_sided => {
+            BsdfDesc::Lobe(Bxdfs::SmoothDielectric(_) | Bxdfs::Tabulated(_) | Bxdfs::Dotted(_))
+                if two_sided =>
+            {
                 Err(Error::invalid(
                     what(),
-                    "twosided around a dielectric interface (dielectric, tabulated): an interface already has two sides (inside = behind the normal)",
+                    "twosided around a dielectric interface (dielectric, tabulated, blendbsdf): an interface already has two sides (inside = behind the normal)",
                 ))
             }
             BsdfDesc::Lobe(b) => Ok(Material::Model { bxdf: b.clone(), two_sided }),

@@ -49,6 +49,7 @@ pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
             "dielectric",
             "tabulated",
             "roughdielectric",
+            "blendbsdf",
         ],
     ),
     ("texture", &["bitmap"]),
@@ -174,6 +175,7 @@ impl Loader {
                 "phong" | "blinn" | "schlick" | "lyon" | "pow16" | "microfacet_conductor" | "roughdielectric",
             ) => bsdf_lobe(e, &ty, p)?,
             ("bsdf", "dielectric") => bsdf_dielectric(e, p)?,
+            ("bsdf", "blendbsdf") => bsdf_blend(e, p)?,
             ("bsdf", "tabulated") => {
                 let (fname, floc) = p
                     .string_at("filename")?
@@ -546,6 +548,37 @@ fn bsdf_dielectric(e: &Elem, mut p: Props) -> Result<Object> {
         e.loc.err(format!("{}: int_ior {int_ior} / ext_ior {ext_ior}: {err}", e.describe()))
     })?;
     Ok(Object::Bsdf(BsdfDesc::Lobe(crate::bsdf::Bxdfs::SmoothDielectric(b))))
+}
+
+/// `bsdf type="blendbsdf"` (Mitsuba's name and meaning): `weight` w ∈ [0, 1] and two nested
+/// dielectric interfaces; the result is `(1 − w)·first + w·second`, an area mixture
+/// ([`crate::bsdf::Dotted`] with coverage w on the second: a dotted face is the polished
+/// `dielectric` first and the rough `roughdielectric` dots second).
+fn bsdf_blend(e: &Elem, mut p: Props) -> Result<Object> {
+    let w = match p.float_at("weight")? {
+        None => 0.5,
+        Some((v, _)) if (0.0..=1.0).contains(&v) => v,
+        Some((v, l)) => return Err(l.err(format!("{}: `weight` must be in [0, 1], got {v}", e.describe()))),
+    };
+    let inner = p.objects("bsdf");
+    p.finish("weight and two nested <bsdf>")?;
+    let lobes: Vec<crate::bsdf::Bxdfs> = inner
+        .into_iter()
+        .filter_map(|(o, _)| match o {
+            Object::Bsdf(BsdfDesc::Lobe(b)) => Some(b),
+            _ => None,
+        })
+        .collect();
+    let [first, second]: [crate::bsdf::Bxdfs; 2] = lobes.try_into().map_err(|v: Vec<_>| {
+        e.loc.err(format!(
+            "{}: needs exactly two nested dielectric <bsdf> (dielectric, roughdielectric, tabulated), found {} usable",
+            e.describe(),
+            v.len()
+        ))
+    })?;
+    let d = crate::bsdf::Dotted::new(w as f32, second, first)
+        .map_err(|err| e.loc.err(format!("{}: {err}", e.describe())))?;
+    Ok(Object::Bsdf(BsdfDesc::Lobe(crate::bsdf::Bxdfs::Dotted(d))))
 }
 
 /// `emitter type="point"`: `position` or `to_world`, and `intensity`.
