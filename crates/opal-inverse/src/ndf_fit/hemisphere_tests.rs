@@ -47,6 +47,7 @@ fn hemisphere_measurement_fits_back() {
         max_interactions: 200,
         fit_on: FitOn::Both,
         floor_rel: 0.01,
+        min_snr: None,
         max_iters: 40,
         coarse_photons: None,
         scale: ScaleSetup { mode: ScaleMode::Absolute, prior: None },
