@@ -45,6 +45,7 @@
 pub mod atlas;
 mod direct;
 pub mod gains;
+pub mod pose;
 pub mod inpaint;
 mod observe;
 mod pipeline;
@@ -55,6 +56,7 @@ mod timing;
 pub mod views;
 
 pub use direct::{MAX_LIGHTS_PER_TEXEL, PENUMBRA_DILATION, direct_irradiance};
+pub use pose::{PoseRefinement, PoseReport, PoseSettings, ViewPose};
 pub use gains::{ViewGain, ViewGainMode, ViewGainSettings, ViewGains, apply_view_gains};
 pub use observe::{RegionStats, luminance_map, object_masks, pixel_ray, region_stats};
 pub use pipeline::{delight, reached_texels, smooth_in_charts, smooth_in_charts_masked};

@@ -328,6 +328,13 @@ pub fn delight(
     let avg = avg.map(|v| (v / aw.max(1e-30)) as f32);
     // 2–3. luminance maps
     let t0 = StageClock::start();
+    // per-view pose refinement (off by default); every later step sees the refined views
+    let tp = StageClock::start();
+    let (poses, refined) = pose::pipeline_stage(&scene, &objects, views, &s.poses, log, &mut warnings);
+    let views: &[View] = refined.as_deref().unwrap_or(views);
+    if poses.is_some() {
+        timings.push("poses", tp.elapsed());
+    }
     let pure: Vec<PureBuffer> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
     // per-view gains from the overlap of the views; every later step sees the corrected views
     let mut view_gains = None;
@@ -692,6 +699,7 @@ pub fn delight(
         iterations,
         converged,
         view_gains,
+        poses,
         warnings,
         timings,
         cpu_timings,
