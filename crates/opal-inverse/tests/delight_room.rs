@@ -42,11 +42,11 @@ use opal::image::Image;
 use opal::math::Vec2;
 use opal::scene::Scene;
 use opal::scene::desc::{BitmapDesc, BsdfDesc, FilterType, SceneDesc, TextureDesc, WrapMode};
-use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::pose::{camera_with, compose};
+use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
-    DelightResult, DelightSettings, ObjectResult, PoseRefinement, PoseSettings, ViewGainMode, ViewGainSettings,
-    delight,
+    DelightResult, DelightSettings, ObjectResult, PoseRefinement, PoseSettings, ViewGainMode,
+    ViewGainSettings, delight,
 };
 use std::path::PathBuf;
 
@@ -288,7 +288,10 @@ fn mitsuba_room_three_views_off() {
 fn pose_error(a: opal::math::DMat4, b: opal::math::DMat4) -> (f64, f64) {
     let r = a.inverse() * b;
     let tr = r.x_axis.x + r.y_axis.y + r.z_axis.z;
-    (((tr - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees(), (a.w_axis.truncate() - b.w_axis.truncate()).length())
+    (
+        ((tr - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees(),
+        (a.w_axis.truncate() - b.w_axis.truncate()).length(),
+    )
 }
 
 /// Issue 25's acceptance: every camera perturbed (0.15–0.3° about a random axis, ~1 px of

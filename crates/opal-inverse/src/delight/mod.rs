@@ -43,12 +43,13 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod atlas;
+pub mod colmap;
 mod direct;
 pub mod gains;
-pub mod pose;
 pub mod inpaint;
 mod observe;
 mod pipeline;
+pub mod pose;
 mod result;
 mod settings;
 pub mod superres;
@@ -56,10 +57,10 @@ mod timing;
 pub mod views;
 
 pub use direct::{MAX_LIGHTS_PER_TEXEL, PENUMBRA_DILATION, direct_irradiance};
-pub use pose::{PoseRefinement, PoseReport, PoseSettings, ViewPose};
 pub use gains::{ViewGain, ViewGainMode, ViewGainSettings, ViewGains, apply_view_gains};
 pub use observe::{RegionStats, luminance_map, object_masks, pixel_ray, region_stats};
 pub use pipeline::{delight, reached_texels, smooth_in_charts, smooth_in_charts_masked};
+pub use pose::{PoseRefinement, PoseReport, PoseSettings, ViewPose};
 pub use result::{DelightResult, IterationStats, ObjectResult};
 pub use settings::{DebugSettings, DelightSettings, UpdateRule};
 pub use timing::{StageClock, cpu_seconds};

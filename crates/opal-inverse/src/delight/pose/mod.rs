@@ -147,6 +147,31 @@ pub struct PoseReport {
 }
 
 impl PoseReport {
+    /// A NeRF-style `transforms.json` of `views` with the refined poses (OpenGL camera axes,
+    /// what [`views::read_views`] reads): per frame `file_path` (the image's absolute path),
+    /// `transform_matrix`, `camera_angle_x`, `w`, `h`, and `pose_refined` (the correction was
+    /// accepted).
+    pub fn transforms_json(&self, views: &[View]) -> serde_json::Value {
+        let frames: Vec<serde_json::Value> = views
+            .iter()
+            .zip(&self.views)
+            .map(|(v, p)| {
+                let gl = p.to_world * DMat4::from_scale(DVec3::new(-1.0, 1.0, -1.0));
+                let rows: Vec<Vec<f64>> = (0..4).map(|r| (0..4).map(|c| gl.col(c)[r]).collect()).collect();
+                let path = std::path::absolute(&v.path).unwrap_or_else(|_| v.path.clone());
+                serde_json::json!({
+                    "file_path": path,
+                    "transform_matrix": rows,
+                    "camera_angle_x": 2.0 * (v.camera.tan_half_x as f64).atan(),
+                    "w": v.camera.width,
+                    "h": v.camera.height,
+                    "pose_refined": p.accepted,
+                })
+            })
+            .collect();
+        serde_json::json!({ "pose_refinement": self.mode.name(), "frames": frames })
+    }
+
     /// The views with the refined cameras (all of them, used or not).
     pub fn apply(&self, views: &[View]) -> Vec<View> {
         views
@@ -179,7 +204,11 @@ fn lookup(a: &Atlas, l: &[f32], obs: &[bool], local: usize, p: Vec3) -> Option<f
     let b2 = e1.cross(d).dot(n) / nn;
     let b0 = 1.0 - b1 - b2;
     // the atlas mesh is the shape's own mesh (same triangles, seams split): check it
-    if b0 < -1e-3 || b1 < -1e-3 || b2 < -1e-3 || (d.dot(n) / nn.sqrt()).abs() > 1e-3 * e1.length().max(e2.length()) {
+    if b0 < -1e-3
+        || b1 < -1e-3
+        || b2 < -1e-3
+        || (d.dot(n) / nn.sqrt()).abs() > 1e-3 * e1.length().max(e2.length())
+    {
         return None;
     }
     let idx = a.mesh.indices[local];
@@ -191,13 +220,19 @@ fn lookup(a: &Atlas, l: &[f32], obs: &[bool], local: usize, p: Vec3) -> Option<f
     let (x0, y0) = (x.floor(), y.floor());
     let (fx, fy) = (x - x0, y - y0);
     let (mut acc, mut wsum) = (0.0, 0.0);
-    for (dx, dy, w) in [(0, 0, (1.0 - fx) * (1.0 - fy)), (1, 0, fx * (1.0 - fy)), (0, 1, (1.0 - fx) * fy), (1, 1, fx * fy)] {
+    for (dx, dy, w) in
+        [(0, 0, (1.0 - fx) * (1.0 - fy)), (1, 0, fx * (1.0 - fy)), (0, 1, (1.0 - fx) * fy), (1, 1, fx * fy)]
+    {
         let (xi, yi) = (x0 as i64 + dx, y0 as i64 + dy);
         if xi < 0 || yi < 0 || xi >= a.width as i64 || yi >= a.height as i64 {
             continue;
         }
         let i = yi as usize * a.width + xi as usize;
-        if a.texel_tri[i] == NO_TRI || a.tri_chart[a.texel_tri[i] as usize] != chart || !obs[i] || !l[i].is_finite() {
+        if a.texel_tri[i] == NO_TRI
+            || a.tri_chart[a.texel_tri[i] as usize] != chart
+            || !obs[i]
+            || !l[i].is_finite()
+        {
             continue;
         }
         acc += w * l[i] as f64;
@@ -236,7 +271,13 @@ pub fn erode(pb: &PureBuffer, r: usize) -> PureBuffer {
 /// Luminance map of one object from `views` (pure buffers `pure`, eroded), extended over the
 /// texels within `width/4` texels of an observed texel of the same chart; returns the
 /// luminance and where it is defined.
-fn edge_free_map(scene: &Scene, shape: u32, a: &Atlas, views: &[View], pure: &[PureBuffer]) -> (Vec<f32>, Vec<bool>) {
+fn edge_free_map(
+    scene: &Scene,
+    shape: u32,
+    a: &Atlas,
+    views: &[View],
+    pure: &[PureBuffer],
+) -> (Vec<f32>, Vec<bool>) {
     let (mut l, obs) = luminance_map(scene, shape, a, views, pure);
     let (w, h) = (a.width, a.height);
     let n = w * h;
@@ -357,7 +398,8 @@ pub fn refine_poses(
             // translation that nearly cancel at the depth of the scene) is weakly constrained and
             // would follow the blur of maps made from misregistered views
             let rot_only = round < s.rotation_rounds.min(s.rounds.max(1) - 1);
-            let align = AlignSettings { dof: if rot_only { PoseDof::Rotation } else { dof }, ..align.clone() };
+            let align =
+                AlignSettings { dof: if rot_only { PoseDof::Rotation } else { dof }, ..align.clone() };
             let fit = align_view(scene, &current[k].camera, &photos[k], &predict, &align);
             iterations[k] += fit.iterations;
             let (ang, dist) = solve_error(poses[k], fit.to_world);
@@ -456,7 +498,7 @@ fn judge(f: &Alignment, given: DMat4, refined: DMat4, depth: f64, s: &PoseSettin
         Some(format!("correction of {ang:.2}° exceeds {}°", s.max_rotation_deg))
     } else if dist > s.max_translation * depth {
         Some(format!("camera moved by {dist:.3e}, more than {} of its distance", s.max_translation))
-    } else if !(f.rms_after <= 1.05 * f.rms_before) {
+    } else if f.rms_after.is_nan() || f.rms_after > 1.05 * f.rms_before {
         Some(format!("residual grew ({:.4} → {:.4})", f.rms_before, f.rms_after))
     } else {
         None
@@ -479,6 +521,7 @@ pub(crate) fn pipeline_stage(
     let objs: Vec<(u32, &Atlas)> = objects.iter().map(|o| (o.shape as u32, &o.atlas)).collect();
     let (rep, w) = refine_poses(scene, &objs, views, s, log);
     warnings.extend(w);
-    let used: Vec<View> = rep.apply(views).into_iter().zip(&rep.views).filter(|(_, p)| p.used).map(|(v, _)| v).collect();
+    let used: Vec<View> =
+        rep.apply(views).into_iter().zip(&rep.views).filter(|(_, p)| p.used).map(|(v, _)| v).collect();
     (Some(rep), Some(used))
 }

@@ -24,7 +24,7 @@
 //! differences.
 
 use opal::camera::Camera;
-use opal::math::{DMat4, DVec3, Vec2, Vec3};
+use opal::math::{DMat4, DVec3, Vec2};
 use opal::scene::{Scene, SurfaceInteraction};
 use rayon::prelude::*;
 
@@ -49,13 +49,16 @@ pub struct AlignSettings {
     /// Stop a level when a step rotates by less than this (radians) and moves the camera by
     /// less than this × the mean depth.
     pub step_tolerance: f64,
-    /// Use only the pixels within this many pixels of a geometric edge (`None`: all pixels).
-    pub edge_band: Option<usize>,
 }
 
 impl Default for AlignSettings {
     fn default() -> Self {
-        AlignSettings { dof: PoseDof::Full, sigmas: vec![4.0, 2.0, 1.0], max_iterations: 12, step_tolerance: 2e-6, edge_band: None }
+        AlignSettings {
+            dof: PoseDof::Full,
+            sigmas: vec![4.0, 2.0, 1.0],
+            max_iterations: 12,
+            step_tolerance: 2e-6,
+        }
     }
 }
 
@@ -102,11 +105,7 @@ pub fn camera_with(cam: &Camera, to_world: DMat4) -> Camera {
 /// in the camera's own frame.
 pub fn compose(to_world: DMat4, omega: DVec3, delta: DVec3) -> DMat4 {
     let angle = omega.length();
-    let r = if angle > 0.0 {
-        DMat4::from_axis_angle(omega / angle, angle)
-    } else {
-        DMat4::IDENTITY
-    };
+    let r = if angle > 0.0 { DMat4::from_axis_angle(omega / angle, angle) } else { DMat4::IDENTITY };
     to_world * DMat4::from_translation(delta) * r
 }
 
@@ -143,63 +142,23 @@ pub fn blur(v: &[f32], w: usize, h: usize, sigma: f64) -> (Vec<f32>, Vec<f32>) {
     s.iter().map(|&(a, m)| (if m > 1e-9 { (a / m) as f32 } else { f32::NAN }, m as f32)).unzip()
 }
 
-/// The prediction and the centre-ray hit point of every pixel at camera `cam`, and (with
-/// `band = Some(r)`) the mask of the pixels within `r` px of a geometric edge (a change of
-/// shape or plane between neighbouring pixels, or of hit / no hit).
+/// The prediction and the centre-ray hit point of every pixel at camera `cam`.
 fn render_prediction(
     scene: &Scene,
     cam: &Camera,
     predict: &(dyn Fn(&SurfaceInteraction) -> Option<f32> + Sync),
-    band: Option<usize>,
-) -> (Vec<f32>, Vec<Option<DVec3>>, Option<Vec<bool>>) {
+) -> (Vec<f32>, Vec<Option<DVec3>>) {
     let (w, h) = (cam.width, cam.height);
-    let px: Vec<(f32, Option<DVec3>, Option<(u32, Vec3)>)> = (0..w * h)
+    (0..w * h)
         .into_par_iter()
         .map(|i| {
             let c = Vec2::new((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
             match scene.intersect(&cam.generate_ray(c)) {
-                Some(si) => (predict(&si).unwrap_or(f32::NAN), Some(si.p.as_dvec3()), Some((si.shape, si.ng))),
-                None => (f32::NAN, None, None),
+                Some(si) => (predict(&si).unwrap_or(f32::NAN), Some(si.p.as_dvec3())),
+                None => (f32::NAN, None),
             }
         })
-        .collect();
-    let mask = band.map(|r| {
-        let same = |a: Option<(u32, Vec3)>, b: Option<(u32, Vec3)>| match (a, b) {
-            (Some((sa, na)), Some((sb, nb))) => sa == sb && na.dot(nb) > 0.999,
-            (None, None) => true,
-            _ => false,
-        };
-        let mut edge = vec![false; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let i = y * w + x;
-                if (x + 1 < w && !same(px[i].2, px[i + 1].2)) || (y + 1 < h && !same(px[i].2, px[i + w].2)) {
-                    edge[i] = true;
-                }
-            }
-        }
-        dilate(&edge, w, h, r)
-    });
-    let (pred, hits) = px.into_iter().map(|(p, x, _)| (p, x)).unzip();
-    (pred, hits, mask)
-}
-
-/// Chebyshev dilation of a mask by `r` pixels (separable).
-fn dilate(m: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
-    let r = r as i64;
-    let pass = |src: &[bool], horizontal: bool| -> Vec<bool> {
-        (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as i64, (i / w) as i64);
-                (-r..=r).any(|d| {
-                    let (xx, yy) = if horizontal { (x + d, y) } else { (x, y + d) };
-                    xx >= 0 && yy >= 0 && xx < w as i64 && yy < h as i64 && src[yy as usize * w + xx as usize]
-                })
-            })
-            .collect()
-    };
-    let t = pass(m, true);
-    pass(&t, false)
+        .unzip()
 }
 
 /// Derivative of the film position of camera-space point `q` with respect to the camera-frame
@@ -250,13 +209,11 @@ struct Linearised {
     depth: f64,
 }
 
-#[allow(clippy::too_many_arguments)]
 fn linearise(
     lv: &Level,
     pred: &[f32],
     support: &[f32],
     hits: &[Option<DVec3>],
-    band: Option<&[bool]>,
     cam: &Camera,
     wtw: DMat4,
     scale: f64,
@@ -268,7 +225,7 @@ fn linearise(
         .into_par_iter()
         .filter_map(|i| {
             let (p, m, xw) = (pred[i], support[i], hits[i]?);
-            if !p.is_finite() || m < 0.99 || band.is_some_and(|b| !b[i]) {
+            if !p.is_finite() || m < 0.99 {
                 return None;
             }
             let (x, y) = ((i % w) as i64, (i / w) as i64);
@@ -319,9 +276,7 @@ fn huber(r: f64, c: f64) -> f64 {
 
 /// Huber cost of the residuals at scale `c`.
 fn cost(rows: &[(f64, [f64; 7])], c: f64) -> f64 {
-    rows.iter()
-        .map(|&(r, _)| if r.abs() <= c { 0.5 * r * r } else { c * (r.abs() - 0.5 * c) })
-        .sum::<f64>()
+    rows.iter().map(|&(r, _)| if r.abs() <= c { 0.5 * r * r } else { c * (r.abs() - 0.5 * c) }).sum::<f64>()
         / rows.len().max(1) as f64
 }
 
@@ -343,15 +298,16 @@ pub fn align_view(
     let n_par = if s.dof == PoseDof::Full { 6 } else { 3 };
     let rel = |rows: &[(f64, [f64; 7])], mean: f64| {
         let c = robust_scale(rows);
-        (rows.iter().map(|r| r.0 * r.0 * huber(r.0, 1.345 * c)).sum::<f64>() / rows.len().max(1) as f64).sqrt()
+        (rows.iter().map(|r| r.0 * r.0 * huber(r.0, 1.345 * c)).sum::<f64>() / rows.len().max(1) as f64)
+            .sqrt()
             / mean.abs().max(1e-30)
     };
     // the residual at the start pose on the finest level (the scale fitted there)
     if let Some(&sigma) = s.sigmas.last() {
         let lv = Level { w, h, y: blur(photo, w, h, sigma).0 };
-        let (p, hits, band) = render_prediction(scene, cam, predict, s.edge_band);
+        let (p, hits) = render_prediction(scene, cam, predict);
         let (pb, sup) = blur(&p, w, h, sigma);
-        let lin = linearise(&lv, &pb, &sup, &hits, band.as_deref(), cam, pose, 0.0);
+        let lin = linearise(&lv, &pb, &sup, &hits, cam, pose, 0.0);
         let (num, den) = lin.rows.iter().fold((0.0, 0.0), |(a, b), (r, j)| (a + r * -j[6], b + j[6] * j[6]));
         let s0 = if den > 0.0 { num / den } else { 1.0 };
         let rows: Vec<_> = lin.rows.iter().map(|(r, j)| (r + s0 * j[6], *j)).collect();
@@ -362,9 +318,9 @@ pub fn align_view(
         let lv = Level { w, h, y: blur(photo, w, h, sigma).0 };
         let eval = |pose: DMat4, scale: f64| {
             let c = camera_with(cam, pose);
-            let (p, hits, band) = render_prediction(scene, &c, predict, s.edge_band);
+            let (p, hits) = render_prediction(scene, &c, predict);
             let (pb, sup) = blur(&p, w, h, sigma);
-            linearise(&lv, &pb, &sup, &hits, band.as_deref(), &c, pose, scale)
+            linearise(&lv, &pb, &sup, &hits, &c, pose, scale)
         };
         let mut lin = eval(pose, scale);
         if lin.rows.len() < 50 {
@@ -487,13 +443,7 @@ pub(crate) mod tests {
         let (o, s) = (Vec3::new(-0.2, 0.0, -0.6), 0.8);
         let (x, y, z) = (Vec3::X * s, Vec3::Y * s, Vec3::Z * s);
         let mut cube = Vec::new();
-        for q in [
-            quad(o, y, x),
-            quad(o + z, x, y),
-            quad(o, z, y),
-            quad(o + x, y, z),
-            quad(o + y, z, x),
-        ] {
+        for q in [quad(o, y, x), quad(o + z, x, y), quad(o, z, y), quad(o + x, y, z), quad(o + y, z, x)] {
             cube.extend(q);
         }
         let shape = |id: &str, tris: &[[Vec3; 3]]| ShapeDesc {
@@ -513,14 +463,21 @@ pub(crate) mod tests {
     pub(crate) fn texture(si: &SurfaceInteraction) -> f32 {
         let p = si.p;
         match si.shape {
-            0 => 0.5 + 0.2 * (3.1 * p.x + 0.7 * p.z).sin() * (2.3 * p.z).cos() + 0.1 * (9.0 * p.x - 5.0 * p.z).sin(),
-            1 => 0.4 + 0.25 * (4.0 * p.x).sin() * (3.3 * p.y + 0.5).sin() + 0.1 * (11.0 * p.y + 2.0 * p.x).cos(),
+            0 => {
+                0.5 + 0.2 * (3.1 * p.x + 0.7 * p.z).sin() * (2.3 * p.z).cos()
+                    + 0.1 * (9.0 * p.x - 5.0 * p.z).sin()
+            }
+            1 => {
+                0.4 + 0.25 * (4.0 * p.x).sin() * (3.3 * p.y + 0.5).sin()
+                    + 0.1 * (11.0 * p.y + 2.0 * p.x).cos()
+            }
             _ => 0.3 + 0.5 * si.ng.x.abs() + 0.2 * si.ng.y.abs(),
         }
     }
 
     pub(crate) fn camera(eye: Vec3, target: Vec3, res: usize) -> Camera {
-        let m = Mat4::look_at_rh(eye, target, Vec3::Y).inverse() * Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
+        let m =
+            Mat4::look_at_rh(eye, target, Vec3::Y).inverse() * Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
         Camera::new(&SensorDesc {
             id: "v".into(),
             to_world: m,
@@ -592,7 +549,11 @@ pub(crate) mod tests {
             let p0 = proj(compose(m, DVec3::new(-v[0], -v[1], -v[2]), DVec3::new(-v[3], -v[4], -v[5])));
             for r in 0..2 {
                 let fd = (p1[r] - p0[r]) / (2.0 * e);
-                assert!((fd - j[r][c]).abs() < 1e-4 * (1.0 + fd.abs()), "row {r} col {c}: {fd} vs {}", j[r][c]);
+                assert!(
+                    (fd - j[r][c]).abs() < 1e-4 * (1.0 + fd.abs()),
+                    "row {r} col {c}: {fd} vs {}",
+                    j[r][c]
+                );
             }
         }
     }

@@ -16,7 +16,13 @@ fn views_of(scene: &Scene, eyes: &[Vec3], res: usize) -> Vec<View> {
             for (d, v) in image.data.iter_mut().zip(&y) {
                 *d = Spectrum::splat(*v);
             }
-            View { name: format!("v{k}"), path: format!("v{k}.exr").into(), camera: cam, image, bad_pixels: 0 }
+            View {
+                name: format!("v{k}"),
+                path: format!("v{k}.exr").into(),
+                camera: cam,
+                image,
+                bad_pixels: 0,
+            }
         })
         .collect()
 }
