@@ -269,7 +269,7 @@ pub fn erode(pb: &PureBuffer, r: usize) -> PureBuffer {
 }
 
 /// Luminance map of one object from `views` (pure buffers `pure`, eroded), extended over the
-/// texels within `width/4` texels of an observed texel of the same chart; returns the
+/// texels within 48 texels of an observed texel of the same chart; returns the
 /// luminance and where it is defined.
 fn edge_free_map(
     scene: &Scene,
@@ -284,7 +284,7 @@ fn edge_free_map(
     let chart: Vec<u32> = (0..n).map(|i| a.texel_chart(i)).collect();
     let covered: Vec<bool> = (0..n).map(|i| a.texel_tri[i] != NO_TRI).collect();
     // texels within reach of an observed one (4-neighbour steps inside the chart)
-    let reach = w.max(h) / 4;
+    let reach = 48;
     let mut dist = vec![usize::MAX; n];
     let mut queue = std::collections::VecDeque::new();
     for i in 0..n {
@@ -319,7 +319,7 @@ fn edge_free_map(
         }
     }
     let domain: Vec<bool> = dist.iter().map(|&d| d != usize::MAX).collect();
-    super::inpaint::inpaint(&mut l, &obs, &domain, &chart, w, h, reach);
+    super::inpaint::inpaint(&mut l, &obs, &domain, &chart, w, h, 3);
     (l.iter().map(|&c| luminance(c)).collect(), domain)
 }
 
@@ -383,7 +383,7 @@ pub fn refine_poses(
             let ov: Vec<View> = others.iter().map(|&j| current[j].clone()).collect();
             let op: Vec<PureBuffer> = others.iter().map(|&j| pure[j].clone()).collect();
             let maps: Vec<(Vec<f32>, Vec<bool>)> =
-                objects.iter().map(|&(shape, a)| edge_free_map(scene, shape, a, &ov, &op)).collect();
+                objects.par_iter().map(|&(shape, a)| edge_free_map(scene, shape, a, &ov, &op)).collect();
             let eye = current[k].camera.origin();
             let predict = |si: &SurfaceInteraction| -> Option<f32> {
                 // an emitter's front shows its known radiance: an outline no view misplaces
