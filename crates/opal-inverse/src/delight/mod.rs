@@ -5,9 +5,9 @@
 //! Pipeline ([`delight`]):
 //! 1. atlas per object ([`atlas`]: own UVs when usable, else planar charts + shelf packing),
 //!    resolution from [`atlas::auto_resolution`] unless given;
-//! 1b. (unless [`PoseRefinement::Off`]) per-view pose refinement ([`pose`]): each view aligned
+//! 2. (unless [`PoseRefinement::Off`]) per-view pose refinement ([`pose`]): each view aligned
 //!    with the other views' maps; the refined views replace the given ones below;
-//! 2. (unless [`ViewGainMode::Fixed`]) per-view gains (exposure, white balance) from the
+//!    (unless [`ViewGainMode::Fixed`]) per-view gains (exposure, white balance) from the
 //!    overlap of the views ([`gains`]); the views are divided by them before everything below;
 //!    luminance map `L`: every covered texel is projected into every view; a view counts when
 //!    the texel faces it, lies in its frustum, the segment to the camera is unoccluded and the
