@@ -618,3 +618,42 @@ fn acceptance_mitsuba_cbox() {
     assert!(psnr >= 38.0, "PSNR {psnr}");
     assert!(region <= 0.018, "region error {region} (NaN: no report.json)");
 }
+
+/// `--refine-poses full`: report.json lists the per-view corrections and OUTPUT/transforms.json
+/// holds the poses (readable as views again). The tiny 24² views have too few pixels for an
+/// alignment (< 500), so every correction is rejected, flagged and the given poses are kept.
+#[test]
+fn refine_poses_writes_transforms_and_corrections() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (out, report) = tiny_run_with(tmp.path(), &cbox(), &["--refine-poses", "full"]);
+    let poses = &report["poses"];
+    assert_eq!(poses["mode"], "full");
+    let v = poses["views"].as_array().unwrap();
+    assert_eq!(v.len(), 3);
+    for p in v {
+        for k in ["rotation_deg", "translation", "angle_deg", "accepted", "used", "rms_before", "reason"] {
+            assert!(p.get(k).is_some(), "{k} missing in {p}");
+        }
+    }
+    let (views, _) = opal_inverse::delight::views::read_views(&out.join("transforms.json")).unwrap();
+    assert_eq!(views.len(), 3);
+    let (given, _) = opal_inverse::delight::views::read_views(&tmp.path().join("transforms.json")).unwrap();
+    for (a, b) in views.iter().zip(&given) {
+        let accepted = v.iter().any(|p| p["view"] == a.name.as_str() && p["accepted"] == true);
+        if !accepted {
+            assert!(a.camera.to_world.abs_diff_eq(b.camera.to_world, 1e-5));
+        }
+    }
+    let o = opal(&[
+        "delight",
+        "--scene",
+        cbox().to_str().unwrap(),
+        "--views",
+        "x.json",
+        "-o",
+        "y",
+        "--refine-poses",
+        "maybe",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+}

@@ -5,7 +5,9 @@
 //! Pipeline ([`delight`]):
 //! 1. atlas per object ([`atlas`]: own UVs when usable, else new charts), resolution from the
 //!    cameras' pixel footprints ([`footprint`]) unless given or the object's own texture size;
-//! 2. (unless [`ViewGainMode::Fixed`]) per-view gains (exposure, white balance) from the
+//! 2. (unless [`PoseRefinement::Off`]) per-view pose refinement ([`pose`]): each view aligned
+//!    with the other views' maps; the refined views replace the given ones below;
+//!    (unless [`ViewGainMode::Fixed`]) per-view gains (exposure, white balance) from the
 //!    overlap of the views ([`gains`]); the views are divided by them before everything below;
 //!    luminance map `L`: every covered texel is projected into every view; a view counts when
 //!    the texel faces it, lies in its frustum, the segment to the camera is unoccluded and the
@@ -50,6 +52,7 @@
 
 mod albedo;
 pub mod atlas;
+pub mod colmap;
 mod direct;
 pub mod footprint;
 pub mod gains;
@@ -57,6 +60,7 @@ pub mod inpaint;
 pub mod noise;
 mod observe;
 mod pipeline;
+pub mod pose;
 mod result;
 mod settings;
 mod smooth;
@@ -69,6 +73,7 @@ pub use direct::{MAX_LIGHTS_PER_TEXEL, PENUMBRA_DILATION, direct_irradiance};
 pub use gains::{ViewGain, ViewGainMode, ViewGainSettings, ViewGains, apply_view_gains};
 pub use observe::{RegionStats, luminance_map, object_masks, pixel_ray, region_stats};
 pub use pipeline::delight;
+pub use pose::{PoseRefinement, PoseReport, PoseSettings, ViewPose};
 pub use result::{DelightResult, IterationStats, ObjectResult};
 pub use settings::{DebugSettings, DelightSettings, LightPaths, UpdateRule};
 pub use smooth::{reached_texels, smooth_in_charts, smooth_in_charts_masked};

@@ -1,6 +1,6 @@
 //! The de-lighting pipeline [`delight`]: checks its inputs, then runs the named stages of
 //! [`super::stages`] in order — unwrap (selection, atlases), direct (irradiance `Ed`),
-//! luminance (per-view gains, luminance maps `L`, then the initial albedo), iterate
+//! pose refinement (optional), luminance (per-view gains, luminance maps `L`, then the initial albedo), iterate
 //! (light-tracing passes, super-resolved luminance after the first) and outputs (debug dump,
 //! result). The steps are described in the module documentation of [`super`] and in
 //! `docs/delight.md`. Tests: `tests/delight.rs` (round trip on a small Cornell box), the CLI's
@@ -11,7 +11,7 @@ use super::stages::outputs::{Finished, assemble, debug_dump};
 use super::stages::{Inputs, direct, iterate, luminance, unwrap};
 use super::timing::{StageClock, Timings};
 use super::views::{PureBuffer, View};
-use super::{DelightResult, DelightSettings, views};
+use super::{DelightResult, DelightSettings, pose, views};
 use opal::error::{Error, Result};
 use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
@@ -49,7 +49,14 @@ pub fn delight(
     let t0 = StageClock::start();
     let avg = direct::direct_stage(&scene, &mut objects, s);
     timings.push("direct", t0.elapsed());
-    // 3. luminance maps (on the views divided by their gains), then the initial albedo
+    // 3. per-view pose refinement (off by default); every later step sees the refined views
+    let tp = StageClock::start();
+    let (poses, refined) = pose::pipeline_stage(&scene, &objects, views, &s.poses, log, &mut warnings);
+    let views: &[View] = refined.as_deref().unwrap_or(views);
+    if poses.is_some() {
+        timings.push("poses", tp.elapsed());
+    }
+    // 4. luminance maps (on the views divided by their gains), then the initial albedo
     let t0 = StageClock::start();
     let pure: Vec<PureBuffer> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
     let (corrected, view_gains) =
@@ -62,9 +69,9 @@ pub fn delight(
     }
     // unseen objects: scene-average albedo of the seen ones
     fill_unseen(&mut objects);
-    // 4. iterations
+    // 5. iterations
     let iterated = iterate::iterate(&inp, &mut objects, views, &pure, &mut warnings, &mut timings)?;
-    // 5. outputs
+    // 6. outputs
     debug_dump(&objects, "final", s.debug.dump_dir.as_deref());
-    Ok(assemble(Finished { objects, skipped, iterated, view_gains, warnings }, timings, t_all))
+    Ok(assemble(Finished { objects, skipped, iterated, view_gains, poses, warnings }, timings, t_all))
 }

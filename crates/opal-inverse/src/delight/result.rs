@@ -120,6 +120,9 @@ pub struct DelightResult {
     /// Estimated per-view gains (`None` with [`super::ViewGainMode::Fixed`]); the recovered
     /// albedos are those of the views divided by them.
     pub view_gains: Option<ViewGains>,
+    /// Refined poses (`None` with [`super::PoseRefinement::Off`]): per view the refined camera,
+    /// the correction and whether the view was used.
+    pub poses: Option<super::pose::PoseReport>,
     /// Warnings (unseen objects, masked pixels, views whose gain is far from the others...).
     pub warnings: Vec<String>,
     /// Wall seconds per stage: (name, seconds).

@@ -78,6 +78,8 @@ pub struct DelightSettings {
     /// Per-view photometric gains (exposure, white balance) estimated from the overlap of the
     /// views; default: none (the views are exact).
     pub view_gains: ViewGainSettings,
+    /// Per-view pose refinement ([`super::pose`]); default: off (the poses are exact).
+    pub poses: super::pose::PoseSettings,
     /// Debug and error-analysis outputs (all off by default).
     pub debug: DebugSettings,
 }
@@ -116,6 +118,7 @@ impl Default for DelightSettings {
             smooth: None,
             superres: Some(superres::SrSettings::default()),
             view_gains: ViewGainSettings::default(),
+            poses: super::pose::PoseSettings::default(),
             debug: DebugSettings::default(),
         }
     }

@@ -14,8 +14,9 @@ use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
-    DelightResult, DelightSettings, LightPaths, ObjectResult, StageClock, UpdateRule, ViewGainMode,
-    ViewGainSettings, apply_view_gains, delight, object_masks, recovered_desc, region_stats,
+    DelightResult, DelightSettings, LightPaths, ObjectResult, PoseRefinement, PoseSettings, StageClock,
+    UpdateRule, ViewGainMode, ViewGainSettings, apply_view_gains, delight, object_masks, recovered_desc,
+    region_stats,
 };
 use serde_json::json;
 use std::fmt::Write as _;
@@ -28,7 +29,9 @@ pub struct DelightArgs {
     /// Mitsuba 3 XML scene (geometry, emitters; BSDFs of the recovered objects are ignored).
     #[arg(long)]
     pub scene: PathBuf,
-    /// NeRF-style transforms.json (OpenGL camera-to-world, camera_angle_x, file_path).
+    /// NeRF-style transforms.json (OpenGL camera-to-world, camera_angle_x, file_path), or a
+    /// COLMAP text model directory (cameras.txt, images.txt; images in DIR/images, DIR/../images
+    /// or DIR; distorted photos are resampled onto ideal pinholes).
     #[arg(long)]
     pub views: PathBuf,
     /// Output folder.
@@ -89,6 +92,11 @@ pub struct DelightArgs {
     /// than this factor.
     #[arg(long, default_value_t = 1.5)]
     pub gain_warn_ratio: f64,
+    /// Refine each view's pose by aligning its photo with the other views' maps before the
+    /// de-lighting: `off` (poses exact), `rotation` or `full` (rotation and translation). The
+    /// refined poses are written to OUTPUT/transforms.json, the corrections to report.json.
+    #[arg(long, default_value = "off")]
+    pub refine_poses: String,
     /// Seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -236,8 +244,17 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     for w in &desc.warnings {
         log(&format!("warning: {w}"));
     }
-    let (views, vwarn) =
-        read_views(&a.views).with_context(|| format!("cannot read the views {}", a.views.display()))?;
+    let (views, vwarn) = if a.views.is_dir() {
+        // a COLMAP text model (cameras.txt, images.txt); images beside it or in ../images
+        let images = [a.views.join("images"), a.views.join("../images")]
+            .into_iter()
+            .find(|d| d.is_dir())
+            .unwrap_or_else(|| a.views.clone());
+        opal_inverse::delight::colmap::read_colmap(&a.views, &images)
+            .with_context(|| format!("cannot read the COLMAP model {}", a.views.display()))?
+    } else {
+        read_views(&a.views).with_context(|| format!("cannot read the views {}", a.views.display()))?
+    };
     for w in &vwarn {
         log(&format!("warning: {w}"));
     }
@@ -314,7 +331,14 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     if !(a.gain_warn_ratio.is_finite() && a.gain_warn_ratio > 1.0) {
         bail!("--gain-warn-ratio must be a number > 1, got {}", a.gain_warn_ratio);
     }
+    let pose_mode = match a.refine_poses.as_str() {
+        "off" => PoseRefinement::Off,
+        "rotation" => PoseRefinement::Rotation,
+        "full" => PoseRefinement::Full,
+        other => bail!("--refine-poses must be off, rotation or full, got '{other}'"),
+    };
     let settings = DelightSettings {
+        poses: PoseSettings { mode: pose_mode, ..Default::default() },
         objects: a.objects.clone(),
         iterations: a.iterations,
         tolerance: a.tolerance,
@@ -330,6 +354,19 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         ..Default::default()
     };
     let r = delight(&desc, &views, &settings, log)?;
+    // photos and re-renders are compared at the refined poses
+    let views = match &r.poses {
+        Some(p) => {
+            std::fs::create_dir_all(&a.output)?;
+            let tj = p.transforms_json(&views);
+            util::write_bytes_atomic(
+                &a.output.join("transforms.json"),
+                serde_json::to_string_pretty(&tj)?.as_bytes(),
+            )?;
+            p.apply(&views)
+        }
+        None => views,
+    };
     // photos and re-renders are compared on the views divided by their estimated gains
     let views = match &r.view_gains {
         Some(g) => apply_view_gains(&views, g),
@@ -597,10 +634,23 @@ fn write_outputs(
             })).collect::<Vec<_>>(),
         })
     });
+    let poses = r.poses.as_ref().map(|p| {
+        json!({
+            "mode": p.mode.name(),
+            "transforms": "transforms.json",
+            "views": p.views.iter().map(|v| json!({
+                "view": v.view, "rotation_deg": v.rotation_deg, "angle_deg": v.angle_deg,
+                "translation": v.translation, "accepted": v.accepted, "used": v.used,
+                "converged": v.converged, "iterations": v.iterations, "pixels": v.pixels,
+                "rms_before": finite(v.rms_before), "rms_after": finite(v.rms_after), "reason": v.reason,
+            })).collect::<Vec<_>>(),
+        })
+    });
     let report = json!({
         "scene": a.scene, "views": a.views, "n_views": views.len(),
-        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "target_noise": a.target_noise, "resolution": a.resolution, "max_resolution": a.max_resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio},
+        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "target_noise": a.target_noise, "resolution": a.resolution, "max_resolution": a.max_resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio, "refine_poses": a.refine_poses},
         "view_gains": view_gains,
+        "poses": poses,
         "converged": r.converged,
         "iterations": its,
         "objects": objs,
@@ -701,6 +751,7 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         tv_exponent: None,
         view_gains: "fixed".into(),
         gain_warn_ratio: 1.5,
+        refine_poses: "off".into(),
         seed: 0,
         threads: None,
         json: false,

@@ -6,7 +6,7 @@
 
 use super::iterate::Iterated;
 use crate::delight::timing::{StageClock, Timings};
-use crate::delight::{DelightResult, ObjectResult, ViewGains, to_image};
+use crate::delight::{DelightResult, ObjectResult, PoseReport, ViewGains, to_image};
 
 /// Debug dump: per object the luminance map, observed mask, direct and indirect irradiance and
 /// albedo as EXR files (`<id>_<tag>_<what>.exr`), for error analysis.
@@ -35,6 +35,8 @@ pub(in crate::delight) struct Finished {
     pub iterated: Iterated,
     /// Estimated per-view gains.
     pub view_gains: Option<ViewGains>,
+    /// Refined poses (when pose refinement ran).
+    pub poses: Option<PoseReport>,
     /// Warnings.
     pub warnings: Vec<String>,
 }
@@ -50,6 +52,7 @@ pub(in crate::delight) fn assemble(f: Finished, mut timings: Timings, t_all: Sta
         iterations,
         converged,
         view_gains: f.view_gains,
+        poses: f.poses,
         warnings: f.warnings,
         timings,
         cpu_timings,

@@ -1,0 +1,106 @@
+//! Multi-view pose refinement through the leave-one-out prediction (see the module docs).
+
+use super::solve::tests::{camera, perturb, photo, pose_error, room};
+use super::*;
+use crate::delight::atlas::build_atlas;
+use opal::image::Image;
+use opal::spectrum::Spectrum;
+
+fn views_of(scene: &Scene, eyes: &[Vec3], res: usize) -> Vec<View> {
+    eyes.iter()
+        .enumerate()
+        .map(|(k, &e)| {
+            let cam = camera(e, Vec3::new(0.0, 0.6, -0.8), res);
+            let y = photo(scene, &cam, 4);
+            let mut image = Image::new(res, res);
+            for (d, v) in image.data.iter_mut().zip(&y) {
+                *d = Spectrum::splat(*v);
+            }
+            View {
+                name: format!("v{k}"),
+                path: format!("v{k}.exr").into(),
+                camera: cam,
+                image,
+                bad_pixels: 0,
+            }
+        })
+        .collect()
+}
+
+/// Mean and max distance (px) between where `truth` and `cam` see the surface points of
+/// `truth`'s pixel centres.
+fn reprojection(scene: &Scene, truth: &opal::camera::Camera, cam: &opal::camera::Camera) -> (f64, f64) {
+    let (mut sum, mut max, mut n) = (0.0, 0.0f64, 0);
+    for y in 0..truth.height {
+        for x in 0..truth.width {
+            let c = opal::math::Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+            let Some(si) = scene.intersect(&truth.generate_ray(c)) else { continue };
+            let Some(q) = cam.project(si.p) else { continue };
+            let d = (q - c).length() as f64;
+            sum += d;
+            max = max.max(d);
+            n += 1;
+        }
+    }
+    (sum / n.max(1) as f64, max)
+}
+
+const EYES: [Vec3; 6] = [
+    Vec3::new(2.5, 2.2, 2.8),
+    Vec3::new(-2.8, 1.6, 2.5),
+    Vec3::new(0.4, 3.0, 3.2),
+    Vec3::new(1.5, 1.2, 3.5),
+    Vec3::new(-1.2, 2.6, 3.0),
+    Vec3::new(2.9, 1.4, 1.0),
+];
+
+/// Six views of the textured room, every camera perturbed by 0.15–0.3° and ~1 px of translation
+/// at the objects; refined through leave-one-out maps of their own photos.
+#[test]
+fn six_perturbed_views_refined_against_each_other() {
+    run(1.0);
+}
+
+#[test]
+fn exact_views_stay() {
+    run(0.0);
+}
+
+fn run(amount: f64) {
+    let desc = room();
+    let scene = Scene::build(&desc).unwrap();
+    let truth = views_of(&scene, &EYES, 128);
+    let atlases: Vec<Atlas> = desc.shapes.iter().map(|s| build_atlas(&s.mesh, 256, false).unwrap()).collect();
+    let objects: Vec<(u32, &Atlas)> = atlases.iter().enumerate().map(|(k, a)| (k as u32, a)).collect();
+    let size = 4.0 * 3f64.sqrt();
+    let mut given = truth.clone();
+    for (k, v) in given.iter_mut().enumerate() {
+        let deg = amount * (0.15 + 0.15 * (k as f64 / 5.0));
+        // ~1 px at ~4.5 m with 128 px over 50°: 4.5 · tan(25°)/64 ≈ 3.3 cm
+        let m = perturb(v.camera.to_world.as_dmat4(), 100 + k as u64, deg, amount * 0.033);
+        v.camera = camera_with(&v.camera, m);
+    }
+    let s = PoseSettings { mode: PoseRefinement::Full, ..Default::default() };
+    let (rep, warnings) = refine_poses(&scene, &objects, &given, &s, &|l| eprintln!("{l}"));
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let (mut before, mut after) = (0.0f64, 0.0f64);
+    for (k, p) in rep.views.iter().enumerate() {
+        let t = truth[k].camera.to_world.as_dmat4();
+        let (r0, t0) = pose_error(t, given[k].camera.to_world.as_dmat4());
+        let (r1, t1) = pose_error(t, p.to_world);
+        eprintln!("{}: {r0:.3}° {:.3} % → {r1:.4}° {:.4} %", p.view, 100.0 * t0 / size, 100.0 * t1 / size);
+        let (m0, x0) = reprojection(&scene, &truth[k].camera, &given[k].camera);
+        let (m1, x1) = reprojection(&scene, &truth[k].camera, &camera_with(&truth[k].camera, p.to_world));
+        eprintln!("   reprojection error mean {m0:.3} px (max {x0:.3}) → {m1:.3} px (max {x1:.3})");
+        assert!(p.accepted && p.used, "{}: {}", p.view, p.reason);
+        before = before.max(m0);
+        after = after.max(m1);
+    }
+    // measured: 0.78–1.28 px → 0.16–0.27 px (exact views: drift ≤ 0.07 px); what is left is mostly a rotation common to all
+    // views traded against a translation (an orbit about the scene, see the module docs)
+    if amount > 0.0 {
+        assert!(after < 0.3 && after < 0.35 * before, "worst mean reprojection {before:.3} → {after:.3} px");
+    } else {
+        assert!(after < 0.1, "exact views moved: {after:.3} px");
+    }
+}
