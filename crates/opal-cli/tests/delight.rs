@@ -106,6 +106,7 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "n_views",
         "settings",
         "view_gains",
+        "poses",
         "converged",
         "iterations",
         "objects",
