@@ -33,6 +33,7 @@
 // The SIMD fast paths exist on x86-64 only; elsewhere the scalar paths run (same results).
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_imports, unused_variables))]
 
+use super::bvh::BOX_FAR_SCALE;
 use super::{BruteForce, Hit};
 use crate::geometry::Ray;
 use crate::math::Vec3;
@@ -82,7 +83,7 @@ const GROUP: usize = 64;
 /// Bytes per sheared corner in the scratch buffer (three `__m256`).
 const SHEARED_BYTES: u32 = 96;
 
-/// Consecutive triangles and their distinct corners.
+/// Consecutive triangles, their distinct corners and their bounds.
 #[derive(Clone, Debug)]
 struct Group {
     /// The distinct corners (by bit pattern) of the group's triangles.
@@ -90,6 +91,66 @@ struct Group {
     /// Per triangle: the byte offsets of its three sheared corners in the scratch buffer
     /// (`96 ·` their index in `verts`), and the triangle's index in the soup (its bits).
     tris: Vec<[u32; 4]>,
+    /// Bounds of the group's triangles (minima, maxima) for the packet's slab test.
+    lo: [f32; 3],
+    hi: [f32; 3],
+}
+
+/// Cost model of [`plan_groups`], in vector operations per packet: the slab test of a group's
+/// box, the shear of one distinct corner, the test of one triangle (counted from the kernel).
+const COST_BOX: f64 = 30.0;
+const COST_CORNER: f64 = 12.0;
+const COST_TRI: f64 = 35.0;
+/// Independent rays a packet counts as for the chance that one of its lanes enters a box (the
+/// lanes are eight paths, partly coherent).
+const RAYS_PER_PACKET: i32 = 4;
+
+/// Splits the soup, in index order, into runs of at most [`GROUP`] triangles that minimise the
+/// expected cost of a packet: a run costs its box test plus, when some lane enters its box
+/// (chance from the box's surface area relative to the soup's, as in the SAH), the shear of
+/// its distinct corners and its triangle tests. Dynamic programming over the run ends; index
+/// order is kept so that ties still go to the lowest index. Returns the runs' start indices
+/// (the first is 0) — any split gives the same hits, only the speed depends on it.
+fn plan_groups(tris: &[[Vec3; 3]]) -> Vec<usize> {
+    let n = tris.len();
+    let area = |lo: Vec3, hi: Vec3| {
+        let e = (hi - lo).max(Vec3::ZERO);
+        2.0 * (e.x as f64 * e.y as f64 + e.y as f64 * e.z as f64 + e.z as f64 * e.x as f64)
+    };
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for p in tris.iter().flatten() {
+        (lo, hi) = (lo.min(*p), hi.max(*p));
+    }
+    let whole = area(lo, hi);
+    let mut best = vec![f64::INFINITY; n + 1];
+    let mut from = vec![0usize; n + 1];
+    best[0] = 0.0;
+    let mut corners = std::collections::HashSet::new();
+    for j in 1..=n {
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        corners.clear();
+        for i in (j.saturating_sub(GROUP)..j).rev() {
+            for p in &tris[i] {
+                (lo, hi) = (lo.min(*p), hi.max(*p));
+                corners.insert([p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]);
+            }
+            let p = if whole > 0.0 { (area(lo, hi) / whole).clamp(0.0, 1.0) } else { 1.0 };
+            let enter = 1.0 - (1.0 - p).powi(RAYS_PER_PACKET);
+            let work = COST_CORNER * corners.len() as f64 + COST_TRI * (j - i) as f64;
+            let cost = best[i] + COST_BOX + enter * work;
+            if cost < best[j] {
+                (best[j], from[j]) = (cost, i);
+            }
+        }
+    }
+    let mut starts = Vec::new();
+    let mut j = n;
+    while j > 0 {
+        j = from[j];
+        starts.push(j);
+    }
+    starts.reverse();
+    starts
 }
 
 /// Tiny triangle soup for [`RayPacket`] queries (see the module docs).
@@ -108,16 +169,18 @@ impl PacketAccel {
     /// Wraps a triangle soup (the cost per packet is linear in the triangle count: meant for a
     /// few dozen).
     pub fn new(tris: Vec<[Vec3; 3]>) -> Self {
+        let starts = plan_groups(&tris);
         let mut groups = Vec::new();
-        for (g, chunk) in tris.chunks(GROUP).enumerate() {
+        for (k, &s) in starts.iter().enumerate() {
+            let e = starts.get(k + 1).copied().unwrap_or(tris.len());
             let mut verts: Vec<Corner> = Vec::new();
             let mut index = std::collections::HashMap::new();
-            let tris = chunk
-                .iter()
-                .enumerate()
-                .map(|(k, t)| {
+            let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+            let ids = (s..e)
+                .map(|t| {
                     let mut e = [0u32; 4];
-                    for (c, p) in t.iter().enumerate() {
+                    for (c, p) in tris[t].iter().enumerate() {
+                        (lo, hi) = (lo.min(*p), hi.max(*p));
                         let key = [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
                         let v = *index.entry(key).or_insert_with(|| {
                             verts.push(Corner([p.x, p.y, p.z, 0.0]));
@@ -125,11 +188,11 @@ impl PacketAccel {
                         });
                         e[c] = v * SHEARED_BYTES;
                     }
-                    e[3] = (g * GROUP + k) as u32;
+                    e[3] = t as u32;
                     e
                 })
                 .collect();
-            groups.push(Group { verts, tris });
+            groups.push(Group { verts, tris: ids, lo: lo.to_array(), hi: hi.to_array() });
         }
         PacketAccel { len: tris.len(), groups, brute: BruteForce::new(tris), avx2: crate::simd::isa().avx2() }
     }
@@ -245,7 +308,30 @@ impl PacketAccel {
         // The sheared corners `(px, py, pz)` of a group, per lane, computed once per distinct
         // corner: a corner shared by several triangles gives each of them the same bits.
         let mut sheared = [const { MaybeUninit::<[__m256; 3]>::uninit() }; 3 * GROUP];
+        // The slab test of a group's box, `Bvh`'s (`bvh::avx::box8`) with one box and eight
+        // rays: near/far planes by the sign of the inverse direction, NaN (`0 · ∞`) not
+        // constraining, the far distance widened by `1 + 2γ₃`, the segment `(0, best_t)`. It
+        // never rejects a group holding a triangle the watertight test would hit closer than
+        // `best_t` (pbrt-v4's conservative box test), so skipping the group changes no hit.
+        let inv = [_mm256_div_ps(one, dx), _mm256_div_ps(one, dy), _mm256_div_ps(one, dz)];
+        let neg = inv.map(|i| _mm256_cmp_ps::<_CMP_LT_OQ>(i, zero));
+        let o = [o0, o1, o2];
+        let scale = _mm256_set1_ps(BOX_FAR_SCALE);
+        let active = _mm256_cmp_ps::<_CMP_GT_OQ>(best_t, zero);
         'groups: for g in &self.groups {
+            let (mut t0, mut t1) = (zero, best_t);
+            for a in 0..3 {
+                let (lo, hi) = (_mm256_set1_ps(g.lo[a]), _mm256_set1_ps(g.hi[a]));
+                let (near, far) = (_mm256_blendv_ps(lo, hi, neg[a]), _mm256_blendv_ps(hi, lo, neg[a]));
+                let tn = _mm256_mul_ps(_mm256_sub_ps(near, o[a]), inv[a]);
+                let tf = _mm256_mul_ps(_mm256_mul_ps(_mm256_sub_ps(far, o[a]), inv[a]), scale);
+                t0 = _mm256_max_ps(tn, t0);
+                t1 = _mm256_min_ps(tf, t1);
+            }
+            let lanes = if ANY { open } else { active };
+            if _mm256_movemask_ps(_mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1), lanes)) == 0 {
+                continue;
+            }
             for (slot, c) in sheared.iter_mut().zip(&g.verts) {
                 // SAFETY: `Corner` is 16-byte aligned and holds 4 floats.
                 let p = unsafe { _mm256_broadcast_ps(&*(c.0.as_ptr() as *const __m128)) };
@@ -437,7 +523,7 @@ mod tests {
 
     #[test]
     fn meshes_with_shared_corners_over_several_groups_match_brute_force() {
-        // A 10 × 8 grid of quads (160 triangles: three groups), corners shared between up to six
+        // A 10 × 8 grid of quads (160 triangles: three groups or more), corners shared between up to six
         // triangles and between groups, heights jittered; rays from above and below, some
         // through grid corners (exact-zero edge functions).
         let mut rng = Rng::new(3, 9, 0);
@@ -451,7 +537,11 @@ mod tests {
                 tris.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
             }
         }
-        assert_eq!(PacketAccel::new(tris.clone()).groups.len(), 3);
+        let pa = PacketAccel::new(tris.clone());
+        assert!(pa.groups.len() >= 3, "{} groups", pa.groups.len());
+        let ids: Vec<u32> = pa.groups.iter().flat_map(|g| g.tris.iter().map(|t| t[3])).collect();
+        assert_eq!(ids, (0..tris.len() as u32).collect::<Vec<_>>(), "runs in index order");
+        assert!(pa.groups.iter().all(|g| g.tris.len() <= GROUP));
         let mut rays = Vec::new();
         for k in 0..6000 {
             let target = Vec3::new(rng.next_f32() * 2.5, rng.next_f32() * 2.0, 0.15);

@@ -7,6 +7,7 @@
 use super::{BOX_FAR_SCALE, Best, Bvh, Entry, LEAF, STACK, WIDTH, order_children, pop};
 use crate::accel::Hit;
 use crate::accel::group::{AvxRay, ShearRay, group_hit_avx};
+use crate::accel::packet::RayPacket;
 use crate::geometry::Ray;
 use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
@@ -41,6 +42,32 @@ pub(super) fn box8(
         t1 = _mm256_min_ps(tf, t1);
     }
     (t0, _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1)) as u32)
+}
+
+/// `Bvh::enters8_portable` for the eight lanes at once: the same operations per lane (the
+/// division, the near/far choice by `inv < 0`, `maxps`/`minps` for the NaN-ignoring `if`s), so
+/// the same mask, bit for bit (`super::tests::enters8_avx2_equals_portable`).
+#[target_feature(enable = "avx2")]
+pub(super) fn enters8_avx2(bounds: (crate::math::Vec3, crate::math::Vec3), rays: &RayPacket) -> u32 {
+    let (lo, hi) = bounds;
+    // SAFETY: unaligned loads of `[f32; 8]` arrays.
+    let ld = |a: &[f32; 8]| unsafe { _mm256_loadu_ps(a.as_ptr()) };
+    let zero = _mm256_setzero_ps();
+    let tmax = ld(&rays.tmax);
+    let (mut t0, mut t1) = (zero, tmax);
+    for a in 0..3 {
+        let inv = _mm256_div_ps(_mm256_set1_ps(1.0), ld(&rays.d[a]));
+        let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(inv, zero);
+        let (l, h) = (_mm256_set1_ps(lo[a]), _mm256_set1_ps(hi[a]));
+        let (near, far) = (_mm256_blendv_ps(l, h, neg), _mm256_blendv_ps(h, l, neg));
+        let o = ld(&rays.o[a]);
+        let tn = _mm256_mul_ps(_mm256_sub_ps(near, o), inv);
+        let tf = _mm256_mul_ps(_mm256_mul_ps(_mm256_sub_ps(far, o), inv), _mm256_set1_ps(BOX_FAR_SCALE));
+        t0 = _mm256_max_ps(tn, t0);
+        t1 = _mm256_min_ps(tf, t1);
+    }
+    let ok = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(tmax, zero), _mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1));
+    _mm256_movemask_ps(ok) as u32
 }
 
 impl Bvh {

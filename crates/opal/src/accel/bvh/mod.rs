@@ -51,7 +51,8 @@ use std::mem::MaybeUninit;
 pub const WIDTH: usize = 8;
 
 /// `1 + 2γ₃` with `γₙ = n u / (1 − n u)`, `u = 2⁻²⁴` (pbrt-v4, robust box test).
-const BOX_FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+pub(super) const BOX_FAR_SCALE: f32 =
+    1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 
 /// Traversal stack size: each node pushes at most 7 entries and the 8-wide tree is no deeper
 /// than the binary one.
@@ -343,6 +344,16 @@ impl Bvh {
     /// a lane left out would find no hit in the traversal either, since every child box lies
     /// inside the bounds and the test is monotone in the box planes.
     pub fn enters8(&self, rays: &RayPacket) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: the CPU supports AVX2 (detected when built).
+            return unsafe { avx::enters8_avx2(self.bounds, rays) };
+        }
+        self.enters8_portable(rays)
+    }
+
+    /// [`Bvh::enters8`] one lane at a time (the scalar original of `avx::enters8_avx2`).
+    fn enters8_portable(&self, rays: &RayPacket) -> u32 {
         let (lo, hi) = self.bounds;
         let mut mask = 0u32;
         for l in 0..PACKET {

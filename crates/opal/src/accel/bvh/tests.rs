@@ -194,3 +194,42 @@ fn interleaved_packets_match_single_rays_bit_for_bit() {
         }
     }
 }
+
+/// The AVX2 bounds test of a packet gives the portable mask bit for bit: rays from inside,
+/// outside and on the bounds, zero and negative-zero direction components, NaN and inactive
+/// lanes, finite and infinite `tmax`.
+#[test]
+fn enters8_avx2_equals_portable() {
+    let tris = crate::accel::scenes::random_soup(200, 0.3, 5);
+    let b = Bvh::new(tris);
+    let (lo, hi) = b.bounds();
+    let mut entered = 0u32;
+    for i in 0..4000u64 {
+        let mut rp = RayPacket::default();
+        for l in 0..PACKET {
+            let mut rng = Rng::new(11, i, l as u64);
+            let mut o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 4.0 - 2.0;
+            let mut d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+            match (i as usize + l) % 9 {
+                1 => d.x = 0.0,
+                2 => (d.y, d.z) = (-0.0, 0.0),
+                3 => o.x = lo.x,
+                4 => o.z = hi.z,
+                5 => d.y = f32::NAN,
+                _ => {}
+            }
+            let tmax = match l % 4 {
+                0 => f32::INFINITY,
+                1 => rng.next_f32() * 3.0,
+                2 => 0.0,
+                _ => rng.next_f32(),
+            };
+            rp.set(l, &Ray { o, d, tmax });
+        }
+        let m = b.enters8(&rp);
+        assert_eq!(m, b.enters8_portable(&rp), "packet {i}");
+        entered += m.count_ones();
+    }
+    // both outcomes occur
+    assert!(entered > 1000 && entered < 4000 * 8 - 1000, "{entered}");
+}
