@@ -13,7 +13,9 @@ pub fn write_exr<W: Write + Seek>(img: &Image, w: W) -> Result<()> {
         (p[0], p[1], p[2])
     });
     let image = exr::image::Image::from_channels((img.width, img.height), layer);
-    image.write().to_buffered(w).map_err(|e| Error::invalid("EXR output", e.to_string()))
+    // one thread: the parallel writer stores the compressed blocks in the order they finish,
+    // so the same pixels could give different files
+    image.write().non_parallel().to_buffered(w).map_err(|e| Error::invalid("EXR output", e.to_string()))
 }
 
 /// sRGB opto-electronic transfer function of a linear value in [0, 1].
@@ -94,6 +96,30 @@ pub fn false_colour(t: f32) -> [u8; 3] {
 mod tests {
     use super::*;
     use crate::spectrum::Spectrum;
+
+    /// The same pixels give the same bytes every time (the blocks of a parallel writer land in
+    /// the order they finish: this failed before the writer was made sequential).
+    #[test]
+    fn exr_bytes_are_deterministic() {
+        let mut img = Image::new(512, 384);
+        let mut rng = crate::sampling::Rng::new(1, 2, 3);
+        for y in 0..384 {
+            for x in 0..512 {
+                // rows of very different entropy, so blocks take different times to compress
+                let v = if (y / 32) % 2 == 0 { rng.next_f32() } else { 0.5 };
+                img.set(x, y, Spectrum::rgb(v, v * 0.5, 1.0 - v));
+            }
+        }
+        let bytes = |img: &Image| {
+            let mut buf = std::io::Cursor::new(Vec::new());
+            write_exr(img, &mut buf).unwrap();
+            buf.into_inner()
+        };
+        let first = bytes(&img);
+        for _ in 0..12 {
+            assert!(bytes(&img) == first, "EXR bytes differ between writes of the same image");
+        }
+    }
 
     #[test]
     fn exr_roundtrip_via_exr_crate() {
