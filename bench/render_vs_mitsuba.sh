@@ -6,8 +6,9 @@
 #         displaced, textured icosphere (written by the opal example `make_scan_room` into a
 #         temp dir), view 0 at 256x256, 64 spp, max depth 16
 #   both  cbox then scan
-# Box filter. Each renderer: one warm-up render, then REPEATS timed renders; the medians of the
-# wall time and of the CPU time are reported (on a shared machine the per-CPU-s ratio is the
+# Box filter. Each renderer: one warm-up render, then REPEATS timed renders, Opal's and Mitsuba
+# llvm_ad_rgb's alternating (pairs in the same minutes); the medians of the wall time and of the
+# CPU time are reported, and the median of the pairs' ratios (on a shared machine the per-CPU-s ratio is the
 # steadier one: another tenant takes cores from one side but not the other). Mitsuba comes from PyPI (`mitsuba` in bench/.venv). The llvm_ad_rgb variant needs a
 # libLLVM >= 16 (Debian: libllvm19); without it only scalar_rgb runs.
 # Usage: bash bench/render_vs_mitsuba.sh [REPEATS=3] [cbox|scan|both]
@@ -46,21 +47,21 @@ def children_cpu():
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
 # Opal: wall = the render's own "seconds"; CPU = the whole process (load and BVH build included)
-opal, opal_cpu = [], []
-for i in range(repeats):
+def run_opal(i):
     c0 = children_cpu()
     out = subprocess.run([opal_bin, "render", scene, "-o", f"{work}/o.exr", "--spp", str(spp), "--max-depth",
                           str(depth), "--seed", str(i + 1), "--json", "--quiet"], capture_output=True, text=True, check=True)
-    opal_cpu.append(children_cpu() - c0)
-    opal.append(json.loads(out.stdout)["seconds"])
+    return json.loads(out.stdout)["seconds"], children_cpu() - c0
+# Mitsuba: a child process that loads the scene, renders once untimed (JIT warm-up), then renders
+# once per line read from stdin and prints (wall, CPU) of the render call
 child = r"""
-import sys, time, statistics, json, resource
+import sys, time, json, resource
 import mitsuba as mi
 mi.set_variant(sys.argv[1])
 import drjit as dr, numpy as np
 scene = mi.load_file(sys.argv[2])
-spp = int(sys.argv[4])
-integ = mi.load_dict({"type": "path", "max_depth": int(sys.argv[5])})
+spp = int(sys.argv[3])
+integ = mi.load_dict({"type": "path", "max_depth": int(sys.argv[4])})
 def cpu():
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
@@ -70,25 +71,56 @@ def one(seed):
     np.array(img); dr.sync_thread()
     return time.perf_counter() - t0, cpu() - c0
 one(0)
-print(json.dumps([one(s + 1) for s in range(int(sys.argv[3]))]))
+print("ready", flush=True)
+for line in sys.stdin:
+    print(json.dumps(one(int(line))), flush=True)
 """
-res = {"opal": (statistics.median(opal), statistics.median(opal_cpu))}
-for v in ["llvm_ad_rgb", "scalar_rgb"]:
-    out = None
-    try:
-        out = subprocess.run([sys.executable, "-c", child, v, scene, str(repeats), str(spp), str(depth)],
-                             capture_output=True, text=True, timeout=3600)
-        runs = json.loads(out.stdout.strip().splitlines()[-1])
-        res["mitsuba_" + v] = (statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs))
-    except Exception as e:
-        print(f"mitsuba {v}: failed ({e}; {out.stderr[-300:] if out else ''})", file=sys.stderr)
+def mitsuba(variant):
+    p = subprocess.Popen([sys.executable, "-c", child, variant, scene, str(spp), str(depth)],
+                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    while True:
+        line = p.stdout.readline()
+        if not line:
+            raise RuntimeError(p.stderr.read()[-300:])
+        if line.strip() == "ready":
+            return p
+def ask(p, seed):
+    p.stdin.write(f"{seed}\n"); p.stdin.flush()
+    return tuple(json.loads(p.stdout.readline()))
+# llvm_ad_rgb interleaved with Opal run by run (the pairs share the same minutes of the shared
+# machine); scalar_rgb after, as a second reference
+res, pairs = {}, []
+opal, mits = [], []
+try:
+    p = mitsuba("llvm_ad_rgb")
+    for i in range(repeats):
+        opal.append(run_opal(i))
+        mits.append(ask(p, i + 1))
+        pairs.append((mits[-1][0] / opal[-1][0], mits[-1][1] / opal[-1][1]))
+    p.stdin.close(); p.wait()
+except Exception as e:
+    print(f"mitsuba llvm_ad_rgb: failed ({e})", file=sys.stderr)
+    opal = opal or [run_opal(i) for i in range(repeats)]
+res["opal"] = (statistics.median(r[0] for r in opal), statistics.median(r[1] for r in opal))
+if mits:
+    res["mitsuba_llvm_ad_rgb"] = (statistics.median(r[0] for r in mits), statistics.median(r[1] for r in mits))
+try:
+    p = mitsuba("scalar_rgb")
+    runs = [ask(p, i + 1) for i in range(repeats)]
+    p.stdin.close(); p.wait()
+    res["mitsuba_scalar_rgb"] = (statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs))
+except Exception as e:
+    print(f"mitsuba scalar_rgb: failed ({e})", file=sys.stderr)
 print(f"{label} {w}x{h}, {spp} spp, max depth {depth}, medians of {repeats} runs")
 print("  (CPU-s: Opal's whole process incl. scene load and BVH build; Mitsuba's render call)")
 for k, (t, c) in res.items():
     print(f"  {k:22s} {t:8.2f} s wall {samples / t / 1e6:7.2f} M samples/s   {c:8.2f} CPU-s {samples / c / 1e6:7.2f} M samples/CPU-s")
 for k, (t, c) in res.items():
     if k != "opal":
-        print(f"  ratio opal / {k}: {t / res['opal'][0]:.2f}x wall, {c / res['opal'][1]:.2f}x per CPU-s")
+        print(f"  ratio opal / {k}: {t / res['opal'][0]:.2f}x wall, {c / res['opal'][1]:.2f}x per CPU-s (ratio of medians)")
+if pairs:
+    print("  interleaved pairs, ratio per CPU-s: " + " ".join(f"{c:.2f}" for _, c in pairs)
+          + f"; median {statistics.median(c for _, c in pairs):.2f}x (wall: median {statistics.median(w for w, _ in pairs):.2f}x)")
 PY
   echo "== $label: load average after $(cut -d' ' -f1-3 /proc/loadavg)"
 }
