@@ -658,7 +658,7 @@ fn mitsuba_cbox_view_gains_acceptance() {
 /// (The earlier configuration — 32-pixel views, 500 k paths, 4 passes — gave the short box
 /// σ 2.3–3.6 % and one seed at −7.5 %.)
 #[test]
-#[ignore = "measurement behind a bound (8 de-lighting runs, ~3 min)"]
+#[ignore = "measurement behind a bound (8 de-lighting runs, ~10 min at load 14)"]
 fn round_trip_small_cbox_seed_spread() {
     let base = load(&data().join("scene.xml"));
     let truth = truth_albedos(&base);
