@@ -318,12 +318,12 @@ fn lights_small_constant_albedos_within_1_percent() {
     assert_eq!(desc.shapes.iter().filter(|s| s.emitter.is_some()).count(), 2);
     let (views, warn) = read_views(&dir.join("transforms.json")).unwrap();
     assert!(warn.is_empty(), "{warn:?}");
-    // 128² maps: at 32² the sphere (552 triangles in 34 charts) reads +20 to +35 % (converged:
-    // the same after 10 passes), at 64² +0.9 to +1.1 % (4 M paths, 10 passes), at 128² and at
-    // `auto` (256² for the sphere) within 0.5 % — the error of small charts in a coarse atlas,
-    // not noise (1.9 % per pixel over hundreds of pixels per object: ≲ 0.1 % on an object's
-    // mean). 8 passes: the fixed
-    // point settles after 6–7 (re-rendering error 38 % after 5 passes, 1.5 % after 8).
+    // 128² maps: coarser maps carry the error of a coarse atlas, not noise (1.9 % per pixel
+    // over hundreds of pixels per object: ≲ 0.1 % on an object's mean): at 32² (2 M paths, 8
+    // passes) the ceiling reads +2.0 %, the sphere ≤ +1.0 % (`lights_small_coarse_atlas_sphere`;
+    // with the planar unwrap of the time it read +20 to +35 %), at 64² every object is within
+    // 1.4 %. 8 passes: the fixed point settles after 6–7 (re-rendering error 38 % after 5
+    // passes, 1.5 % after 8).
     let s = DelightSettings {
         resolution: Some(128),
         light_paths: LightPaths::Fixed(2_000_000),
