@@ -165,7 +165,12 @@ fn small_fit_writes_outputs() {
     // rendered with another seed (256 spp each), agrees within the noise, σ from both
     // `--stderr` images: the image mean (z-test at 4σ) and the 48 blocks of 4 × 4 pixels
     // (Σ z² below the χ²(48) 99.9 % quantile, 84.0). Measured: mean z 1.80, Σ z² 52.1; two
-    // seeds of the same analytic scene give 48.9; the analytic face at α 0.3 or 0.05 in place
+    // seeds of the same analytic scene give 48.9. The mean's z of 1.8 is the draw of
+    // the two seeds, neither a table bias nor a too small σ: over 24 seeds each (11–34, 256 spp)
+    // the two image means agree to 7·10⁻⁵ relative (z = 0.13); seed 1 of the face.obsdf image
+    // lies +1.7 and seed 2 of the analytic one −1.3 of their seed-to-seed σ (5.2 / 5.5·10⁻⁴)
+    // from those means, and the σ from the `--stderr` images (9.0·10⁻⁴) is not below the
+    // seed spread's (7.6·10⁻⁴); the analytic face at α 0.3 or 0.05 in place
     // of the fit (0.15) gives Σ z² 300 / 109 (mean z 11.8 / −5.4; by hand, same scene and
     // seeds), so the blocks carry the power. The
     // table's discretisation error (≤ 3 % L1 per incidence, `opal::bsdf::tabulated`) stays
@@ -333,8 +338,9 @@ fn student_with_shift_reports_every_parameter() {
     //   evaluation, γ or the shift were wrong (measured ΔX −5.7, sd 39, threshold 97);
     // * the nested fit stays on the GGX model: α within 1 % of the GGX candidate's (same data,
     //   same random numbers, and 10⁻² is the optimiser's coarse tolerance in ln α; measured
-    //   0.2 %) and α within 15 % of the truth (10 000 photons;
-    //   measured +3.8 %).
+    //   0.2 %) and α within 10.5 % of the truth: |mean| + 4σ of the same fit over 8 other seeds
+    //   (`--seed 11..18`, 10 000 photons: α mean 0.1476 = −1.6 %, σ 0.0033 = 2.2 %; measured
+    //   here, seed 1: +3.8 %, 2.5σ above that mean). It was a flat 15 %.
     // Measured: γ = 2.000 (q = 2/γ = 1, the GGX end), δ = 0.000°.
     let d = tempfile::tempdir().unwrap();
     let csv = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/fit_ndf_demo.csv");
@@ -369,7 +375,7 @@ fn student_with_shift_reports_every_parameter() {
     assert_eq!(sel["accepted"], false, "{sel}");
     assert!(sel["delta_chi2"].as_f64().unwrap() < sel["threshold"].as_f64().unwrap(), "{sel}");
     assert!((a / ggx["alpha"].as_f64().unwrap() - 1.0).abs() < 0.01, "alpha {a} vs GGX {}", ggx["alpha"]);
-    assert!((a / 0.15 - 1.0).abs() < 0.15, "alpha {a}");
+    assert!((a / 0.15 - 1.0).abs() < 0.105, "alpha {a}");
     assert!((2.0..200.0).contains(&g), "gamma {g}");
     assert!((0.0..5.0).contains(&dd), "delta {dd}°");
     // the kept model is what the NDF table and the plate file hold
@@ -404,8 +410,9 @@ fn bad_scale_flags_exit_2() {
     }
 }
 
-/// ((incidence, side) as in the file, the curve's maximum) of every curve.
-type Peaks = Vec<((String, String), f64)>;
+/// ((incidence, side) as in the file, (the curve's maximum, its standard error in the file)) of
+/// every curve.
+type Peaks = Vec<((String, String), (f64, f64))>;
 
 /// The demo measurement with every curve divided by its maximum and no value_stderr column
 /// (relative data as many instruments give it); returns the CSV text and each curve's maximum
@@ -420,18 +427,20 @@ fn normalised_demo() -> (String, Peaks) {
         .collect();
     let col = |n: &str| rows[0].iter().position(|c| c == n).unwrap();
     let (ci, cs, cd, cv) = (col("incidence_deg"), col("side"), col("detector_deg"), col("value"));
+    let ce = col("value_stderr");
     let mut max: Peaks = Vec::new();
     for r in &rows[1..] {
         let key = (r[ci].clone(), r[cs].clone());
-        let v: f64 = r[cv].parse().unwrap();
+        let (v, e): (f64, f64) = (r[cv].parse().unwrap(), r[ce].parse().unwrap());
         match max.iter_mut().find(|m| m.0 == key) {
-            Some(m) => m.1 = m.1.max(v),
-            None => max.push((key, v)),
+            Some(m) if v > m.1.0 => m.1 = (v, e),
+            Some(_) => {}
+            None => max.push((key, (v, e))),
         }
     }
     let mut out = String::from("incidence_deg,side,detector_deg,value\n");
     for r in &rows[1..] {
-        let m = max.iter().find(|m| m.0 == (r[ci].clone(), r[cs].clone())).unwrap().1;
+        let m = max.iter().find(|m| m.0 == (r[ci].clone(), r[cs].clone())).unwrap().1.0;
         let v: f64 = r[cv].parse().unwrap();
         out.push_str(&format!("{},{},{},{:e}\n", r[ci], r[cs], r[cd], v / m));
     }
@@ -442,8 +451,11 @@ fn normalised_demo() -> (String, Peaks) {
 fn relative_measurement_fits_with_factors() {
     // every curve normalised to 1 at its peak, no standard errors, a 3 % relative error per
     // point: one factor per curve (measured = factor × simulated, so factor ≈ 1 / the curve's
-    // absolute maximum); few photons, so the bounds are loose (α within 10 % as in
-    // small_fit_writes_outputs, factors within 4 standard errors + 3 % of the truth)
+    // absolute maximum); few photons (α within 10 % as in small_fit_writes_outputs). Factors:
+    // factor × maximum within 4σ of 1, σ² = the factor's standard error² + the maximum's own
+    // (the file's value_stderr at the peak, 0.1–1 %: the normalisation divides by a noisy
+    // point). Measured: |factor × maximum − 1| ≤ 2.1σ (30° R: 1.275 ± 0.132; the T curves
+    // 0.976–1.000 ± 0.021–0.024). The former flat +3 % is not needed.
     let d = tempfile::tempdir().unwrap();
     let (csv, max) = normalised_demo();
     let p = d.path().join("relative.csv");
@@ -470,10 +482,11 @@ fn relative_measurement_fits_with_factors() {
     assert_eq!(j["candidates"][0]["parameter_count"], 1 + fs.len());
     for f in fs {
         let (inc, side) = (f["incidence_deg"].as_f64().unwrap(), f["side"].as_str().unwrap());
-        let m = max.iter().find(|m| m.0.0.parse::<f64>().unwrap() == inc && m.0.1 == side).unwrap().1;
+        let (m, me) = max.iter().find(|m| m.0.0.parse::<f64>().unwrap() == inc && m.0.1 == side).unwrap().1;
         let (k, e) = (f["factor"].as_f64().unwrap() * m, f["stderr"].as_f64().unwrap() * m);
-        eprintln!("{inc}° {side}: factor × max {k:.4} ± {e:.4}");
-        assert!(e > 0.0 && (k - 1.0).abs() < 4.0 * e + 0.03, "{inc}° {side}: {k} ± {e}");
+        let sigma = (e * e + (me / m).powi(2)).sqrt();
+        eprintln!("{inc}° {side}: factor × max {k:.4} ± {e:.4} (σ {sigma:.4}, z {:+.2})", (k - 1.0) / sigma);
+        assert!(e > 0.0 && (k - 1.0).abs() < 4.0 * sigma, "{inc}° {side}: {k} ± {sigma}");
     }
     let ratio = j["rms_over_noise"].as_f64().unwrap();
     eprintln!("rms/noise {ratio:.3}");
