@@ -16,9 +16,11 @@
 //!   others exact, `exposure` — the same bounds.
 //!
 //! * `mitsuba_room_perturbed_poses`: issue 25's acceptance — every camera rotated by 0.15–0.3°
-//!   about a random axis and moved by ~1 px at the scene centre (fixed seed), the pose
-//!   refinement `full` (`OPAL_REFINE_POSES=off|rotation|full` overrides it; bounds asserted for
-//!   `full` only), judged at the TRUE cameras; prints the pose errors before and after.
+//!   about a random axis and moved by ~1 px at the scene centre (fixed seed;
+//!   `OPAL_POSE_SEED=<hex>` another one), the pose refinement `full`
+//!   (`OPAL_REFINE_POSES=off|rotation|full` overrides it; bounds asserted for `full` only),
+//!   judged at the TRUE cameras; prints the pose errors and the mean reprojection error at the
+//!   true cameras before and after.
 //!
 //! `OPAL_VIEW_GAINS=fixed|exposure|exposure+wb` overrides the mode of the two gained tests (e.g.
 //! `fixed` shows what the gained views give without the estimation; bounds are then not
