@@ -24,7 +24,7 @@
 //! differences.
 
 use opal::camera::Camera;
-use opal::math::{DMat4, DVec3, Vec2};
+use opal::math::{DMat4, DVec3, Vec2, Vec3};
 use opal::scene::{Scene, SurfaceInteraction};
 use rayon::prelude::*;
 
@@ -49,6 +49,9 @@ pub struct AlignSettings {
     /// Stop a level when a step rotates by less than this (radians) and moves the camera by
     /// less than this × the mean depth.
     pub step_tolerance: f64,
+    /// Also return the geometric-edge normal equations at the refined pose
+    /// ([`Alignment::edges`]).
+    pub edge_system: bool,
 }
 
 impl Default for AlignSettings {
@@ -58,6 +61,7 @@ impl Default for AlignSettings {
             sigmas: vec![4.0, 2.0, 1.0],
             max_iterations: 12,
             step_tolerance: 2e-6,
+            edge_system: false,
         }
     }
 }
@@ -80,6 +84,9 @@ pub struct Alignment {
     pub rms_after: f64,
     /// Fitted scale `s` of the prediction (photo ≈ s · prediction).
     pub scale: f64,
+    /// The geometric-edge normal equations at the refined pose (finest level; see
+    /// [`edge_system`]), when [`AlignSettings::edge_system`] asked for them.
+    pub edges: Option<EdgeSystem>,
 }
 
 /// Camera with a new `to_world` (the other parameters of `cam`).
@@ -142,24 +149,97 @@ pub fn blur(v: &[f32], w: usize, h: usize, sigma: f64) -> (Vec<f32>, Vec<f32>) {
     s.iter().map(|&(a, m)| (if m > 1e-9 { (a / m) as f32 } else { f32::NAN }, m as f32)).unzip()
 }
 
-/// The prediction and the centre-ray hit point of every pixel at camera `cam`.
+/// Surface a pixel's centre ray hits: shape and geometric normal.
+type SurfaceKey = Option<(u32, Vec3)>;
+
+/// The predicted image at one pose.
+struct Prediction {
+    /// Prediction per pixel (NaN = none).
+    p: Vec<f32>,
+    /// Centre-ray hit point.
+    hits: Vec<Option<DVec3>>,
+    /// Centre-ray hit surface.
+    keys: Vec<SurfaceKey>,
+    /// The pixel straddles an edge (its prediction is the pixel mean).
+    mixed: Vec<bool>,
+}
+
+/// The prediction, the centre-ray hit point and the hit surface of every pixel at camera `cam`.
 fn render_prediction(
     scene: &Scene,
     cam: &Camera,
     predict: &(dyn Fn(&SurfaceInteraction) -> Option<f32> + Sync),
-) -> (Vec<f32>, Vec<Option<DVec3>>) {
+) -> Prediction {
     let (w, h) = (cam.width, cam.height);
-    (0..w * h)
+    let px: Vec<(f32, Option<DVec3>, SurfaceKey)> = (0..w * h)
         .into_par_iter()
         .map(|i| {
             let c = Vec2::new((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
             match scene.intersect(&cam.generate_ray(c)) {
-                Some(si) => (predict(&si).unwrap_or(f32::NAN), Some(si.p.as_dvec3())),
-                None => (f32::NAN, None),
+                Some(si) => {
+                    (predict(&si).unwrap_or(f32::NAN), Some(si.p.as_dvec3()), Some((si.shape, si.ng)))
+                }
+                None => (f32::NAN, None, None),
             }
         })
-        .unzip()
+        .collect();
+    let mut out = (Vec::with_capacity(w * h), Vec::with_capacity(w * h), Vec::with_capacity(w * h));
+    for (p, x, k) in px {
+        out.0.push(p);
+        out.1.push(x);
+        out.2.push(k);
+    }
+    // a pixel whose neighbours see another surface straddles an edge: its photo is the mean over
+    // the pixel (box filter), so is its prediction (EDGE_SS × EDGE_SS stratified rays; none when
+    // a part of the pixel has no prediction). One centre ray would put the edge of the
+    // prediction on the pixel grid, up to half a pixel from where the photo has it.
+    // (Edges whose two sides predict within 2 % of each other, e.g. the facets of a tessellated
+    // sphere, are left point-sampled: their offset is small and they are many.)
+    let (keys, pc) = (&out.2, &out.0);
+    let same = |i: usize, j: usize| match (keys[i], keys[j]) {
+        (Some((a, na)), Some((b, nb))) => {
+            (a == b && na.dot(nb) > 0.999) || (pc[i] - pc[j]).abs() <= 0.02 * pc[i].abs().max(pc[j].abs())
+        }
+        (None, None) => true,
+        _ => false,
+    };
+    let edge: Vec<usize> = (0..w * h)
+        .filter(|&i| {
+            let (x, y) = (i % w, i / w);
+            (x > 0 && !same(i, i - 1))
+                || (x + 1 < w && !same(i, i + 1))
+                || (y > 0 && !same(i, i - w))
+                || (y + 1 < h && !same(i, i + w))
+        })
+        .collect();
+    let n = EDGE_SS;
+    let sub: Vec<f32> = edge
+        .par_iter()
+        .map(|&i| {
+            let mut acc = 0.0f32;
+            for k in 0..n * n {
+                let c = Vec2::new(
+                    (i % w) as f32 + ((k % n) as f32 + 0.5) / n as f32,
+                    (i / w) as f32 + ((k / n) as f32 + 0.5) / n as f32,
+                );
+                match scene.intersect(&cam.generate_ray(c)).and_then(|si| predict(&si)) {
+                    Some(v) => acc += v,
+                    None => return f32::NAN,
+                }
+            }
+            acc / (n * n) as f32
+        })
+        .collect();
+    let mut mixed = vec![false; w * h];
+    for (&i, v) in edge.iter().zip(sub) {
+        out.0[i] = v;
+        mixed[i] = true;
+    }
+    Prediction { p: out.0, hits: out.1, keys: out.2, mixed }
 }
+
+/// Rays per side of a pixel at an edge of the prediction.
+const EDGE_SS: usize = 4;
 
 /// Derivative of the film position of camera-space point `q` with respect to the camera-frame
 /// pose change `(ω, δ)`: rows px, py; columns ω (3), δ (3).
@@ -280,6 +360,131 @@ fn cost(rows: &[(f64, [f64; 7])], c: f64) -> f64 {
         / rows.len().max(1) as f64
 }
 
+/// Gauss–Newton normal equations of the *geometric edges* of one view (camera frame: rotation
+/// vector, translation; residuals relative to the mean prediction). See [`edge_system`].
+#[derive(Clone, Debug)]
+pub struct EdgeSystem {
+    /// `Σ w eᵀe` (6 × 6).
+    pub h: [[f64; 6]; 6],
+    /// `Σ w r eᵀ`.
+    pub g: [f64; 6],
+    /// Pixels with a geometric edge in their blur window.
+    pub pixels: usize,
+}
+
+/// Gradient of `p` (NaN = undefined) from neighbours on the same surface only (central
+/// difference, one-sided where one neighbour is on another surface; NaN where none is, and at
+/// the `mixed` pixels, which see two).
+fn within_surface_gradient(
+    p: &[f32],
+    keys: &[SurfaceKey],
+    mixed: &[bool],
+    w: usize,
+    h: usize,
+) -> (Vec<f32>, Vec<f32>) {
+    let same = |i: usize, j: usize| match (keys[i], keys[j]) {
+        (Some((a, na)), Some((b, nb))) => a == b && na.dot(nb) > 0.999 && p[j].is_finite() && !mixed[j],
+        _ => false,
+    };
+    (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            if !p[i].is_finite() || mixed[i] {
+                return (f32::NAN, f32::NAN);
+            }
+            let (x, y) = (i % w, i / w);
+            let d = |lo: Option<usize>, hi: Option<usize>| {
+                let lo = lo.filter(|&j| same(i, j));
+                let hi = hi.filter(|&j| same(i, j));
+                match (lo, hi) {
+                    (Some(l), Some(r)) => 0.5 * (p[r] - p[l]),
+                    (Some(l), None) => p[i] - p[l],
+                    (None, Some(r)) => p[r] - p[i],
+                    (None, None) => f32::NAN,
+                }
+            };
+            let gx = d((x > 0).then(|| i - 1), (x + 1 < w).then_some(i + 1));
+            let gy = d((y > 0).then(|| i - w), (y + 1 < h).then_some(i + w));
+            (gx, gy)
+        })
+        .unzip()
+}
+
+/// Normal equations of the residual of view `cam` (blurred photo `lv` at `sigma`, scale `s`)
+/// for a motion under which the *textures* of the prediction move with the view and only its
+/// geometric edges (changes of shape or plane) stay: the Jacobian of a pixel is
+/// `s · ∇P_edge · ∂p/∂θ`, with `∇P_edge` the gradient of the blurred prediction minus the blur
+/// of its gradient within each surface. This is the motion of all views together (their
+/// textures shift alike), which only the geometry constrains.
+fn edge_system(
+    lv: &Level,
+    scene: &Scene,
+    cam: &Camera,
+    predict: &(dyn Fn(&SurfaceInteraction) -> Option<f32> + Sync),
+    sigma: f64,
+    scale: f64,
+) -> EdgeSystem {
+    let (w, h) = (lv.w, lv.h);
+    let Prediction { p, hits, keys, mixed } = render_prediction(scene, cam, predict);
+    let (pb, sup) = blur(&p, w, h, sigma);
+    let (gx0, gy0) = within_surface_gradient(&p, &keys, &mixed, w, h);
+    let (gxt, gyt) = (blur(&gx0, w, h, sigma).0, blur(&gy0, w, h, sigma).0);
+    let pl = Level { w, h, y: pb };
+    let to_cam = cam.to_world.as_dmat4().inverse();
+    let (tx, ty) = (cam.tan_half_x as f64, cam.tan_half_y as f64);
+    let rows: Vec<(f64, [f64; 6], f64, bool)> = (0..w * h)
+        .into_par_iter()
+        .filter_map(|i| {
+            let (pv, xw) = (pl.y[i], hits[i]?);
+            if !pv.is_finite() || sup[i] < 0.99 {
+                return None;
+            }
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            let yv = lv.at(x, y);
+            if !yv.is_finite() {
+                return None;
+            }
+            let (px, py) = pl.grad(x, y)?;
+            let t = |g: f32| if g.is_finite() { g as f64 } else { 0.0 };
+            let (ex, ey) = (px - t(gxt[i]), py - t(gyt[i]));
+            let q = to_cam.transform_point3(xw);
+            if q.z <= 0.0 {
+                return None;
+            }
+            let jp = projection_jacobian(q, tx, ty, w as f64, h as f64);
+            let mut e = [0.0; 6];
+            for c in 0..6 {
+                e[c] = scale * (ex * jp[0][c] + ey * jp[1][c]);
+            }
+            let edge = ex.hypot(ey) > 1e-3 * (pv as f64).abs();
+            Some((yv as f64 - scale * pv as f64, e, pv as f64, edge))
+        })
+        .collect();
+    let mut out = EdgeSystem { h: [[0.0; 6]; 6], g: [0.0; 6], pixels: 0 };
+    if rows.is_empty() {
+        return out;
+    }
+    let mean = rows.iter().map(|r| r.2).sum::<f64>() / rows.len() as f64;
+    // Huber scale from all pixels, as in the alignment (from the edge pixels alone, the exact
+    // views of the synthetic room drifted by 0.03°: the predictions extended over the edge
+    // bands carry errors of their own there)
+    let mut a: Vec<f64> = rows.iter().map(|r| r.0.abs()).collect();
+    let k = a.len() / 2;
+    let c = 1.345 * 1.4826 * *a.select_nth_unstable_by(k, f64::total_cmp).1;
+    let norm = 1.0 / (mean * mean).max(1e-60);
+    for (r, e, _, edge) in &rows {
+        let wgt = huber(*r, c.max(1e-12)) * norm;
+        for a in 0..6 {
+            out.g[a] += wgt * e[a] * r;
+            for b in 0..6 {
+                out.h[a][b] += wgt * e[a] * e[b];
+            }
+        }
+        out.pixels += *edge as usize;
+    }
+    out
+}
+
 /// Aligns the photo luminance `photo` (row-major, `cam.width × cam.height`, NaN = unusable) to
 /// the model's prediction, starting from `cam`'s pose.
 pub fn align_view(
@@ -295,6 +500,7 @@ pub fn align_view(
     let mut iterations = 0;
     let mut converged = false;
     let (mut rms_before, mut rms_after, mut pixels) = (f64::NAN, f64::NAN, 0);
+    let mut edges = None;
     let n_par = if s.dof == PoseDof::Full { 6 } else { 3 };
     let rel = |rows: &[(f64, [f64; 7])], mean: f64| {
         let c = robust_scale(rows);
@@ -305,9 +511,9 @@ pub fn align_view(
     // the residual at the start pose on the finest level (the scale fitted there)
     if let Some(&sigma) = s.sigmas.last() {
         let lv = Level { w, h, y: blur(photo, w, h, sigma).0 };
-        let (p, hits) = render_prediction(scene, cam, predict);
-        let (pb, sup) = blur(&p, w, h, sigma);
-        let lin = linearise(&lv, &pb, &sup, &hits, cam, pose, 0.0);
+        let pr = render_prediction(scene, cam, predict);
+        let (pb, sup) = blur(&pr.p, w, h, sigma);
+        let lin = linearise(&lv, &pb, &sup, &pr.hits, cam, pose, 0.0);
         let (num, den) = lin.rows.iter().fold((0.0, 0.0), |(a, b), (r, j)| (a + r * -j[6], b + j[6] * j[6]));
         let s0 = if den > 0.0 { num / den } else { 1.0 };
         let rows: Vec<_> = lin.rows.iter().map(|(r, j)| (r + s0 * j[6], *j)).collect();
@@ -318,9 +524,9 @@ pub fn align_view(
         let lv = Level { w, h, y: blur(photo, w, h, sigma).0 };
         let eval = |pose: DMat4, scale: f64| {
             let c = camera_with(cam, pose);
-            let (p, hits) = render_prediction(scene, &c, predict);
-            let (pb, sup) = blur(&p, w, h, sigma);
-            linearise(&lv, &pb, &sup, &hits, &c, pose, scale)
+            let pr = render_prediction(scene, &c, predict);
+            let (pb, sup) = blur(&pr.p, w, h, sigma);
+            linearise(&lv, &pb, &sup, &pr.hits, &c, pose, scale)
         };
         let mut lin = eval(pose, scale);
         if lin.rows.len() < 50 {
@@ -409,9 +615,12 @@ pub fn align_view(
         if last {
             rms_after = rel(&lin.rows, lin.mean_pred);
             pixels = lin.rows.len();
+            if s.edge_system {
+                edges = Some(edge_system(&lv, scene, &camera_with(cam, pose), predict, sigma, scale));
+            }
         }
     }
-    Alignment { to_world: pose, iterations, converged, pixels, rms_before, rms_after, scale }
+    Alignment { to_world: pose, iterations, converged, pixels, rms_before, rms_after, scale, edges }
 }
 
 #[cfg(test)]
