@@ -55,7 +55,11 @@ fn main() {
         Ok(code) => std::process::exit(code),
         Err(e) => {
             eprintln!("error: {e:#}");
-            std::process::exit(2);
+            // 130 = stopped by a signal (128 + SIGINT), as shells report it; 2 = bad input
+            let interrupted = e.chain().any(|c| {
+                matches!(c.downcast_ref::<opal::error::Error>(), Some(opal::error::Error::Interrupted { .. }))
+            });
+            std::process::exit(if interrupted { 130 } else { 2 });
         }
     }
 }

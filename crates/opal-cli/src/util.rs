@@ -13,6 +13,31 @@ pub fn set_quiet(q: bool) {
     QUIET.store(q, Ordering::Relaxed);
 }
 
+/// Set by the first Ctrl-C (SIGINT) or SIGTERM; long runs stop at their next checkpoint.
+static INTERRUPT: std::sync::OnceLock<std::sync::Arc<AtomicBool>> = std::sync::OnceLock::new();
+
+/// The flag [`install_interrupt_handler`] sets on the first signal.
+pub fn interrupt_flag() -> std::sync::Arc<AtomicBool> {
+    INTERRUPT.get_or_init(Default::default).clone()
+}
+
+/// Ctrl-C / SIGTERM handling for long runs: the first signal sets [`interrupt_flag`] (the run
+/// stops at its next stage or iteration boundary, keeps what it can and renames no partial
+/// output into place); a second one exits at once with code 130 (temporary files are left as
+/// `.opal-tmp-*`, never under an output's name).
+pub fn install_interrupt_handler() {
+    let flag = interrupt_flag();
+    let r = ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::SeqCst) {
+            eprintln!("interrupted again: exiting now");
+            std::process::exit(130);
+        }
+        eprintln!("interrupt: stopping at the next stage or iteration boundary (Ctrl-C again to exit now)");
+    });
+    // a second installation (e.g. `demo` running several commands) keeps the first handler
+    let _ = r;
+}
+
 /// A progress bar on stderr with `len` steps; hidden with `--quiet` or when stderr is not a
 /// terminal.
 pub fn progress(len: u64, msg: &str) -> ProgressBar {

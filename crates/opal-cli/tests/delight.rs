@@ -658,3 +658,86 @@ fn refine_poses_writes_transforms_and_corrections() {
     ]);
     assert_eq!(o.status.code(), Some(2));
 }
+
+/// Ctrl-C during `opal delight`: the run stops after its current iteration with exit code 130,
+/// keeps the finished iterations in OUT/checkpoint and writes no result; the same command with
+/// `--resume` finishes it with the same output images, byte for byte, as an uninterrupted run,
+/// and removes the checkpoint.
+#[cfg(unix)]
+#[test]
+fn interrupted_delight_resumes_to_the_same_bytes() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    let tmp = tempfile::tempdir().unwrap();
+    let tj = make_views(tmp.path(), 3, 24);
+    let args = |out: &Path| -> Vec<String> {
+        let mut a: Vec<String> = ["delight", "--scene"].map(String::from).to_vec();
+        a.push(cbox().display().to_string());
+        a.extend(["--views".to_string(), tj.display().to_string(), "-o".into(), out.display().to_string()]);
+        a.extend(
+            [
+                "--resolution",
+                "16",
+                "--light-paths",
+                "1500000",
+                "--iterations",
+                "4",
+                "--rerender-spp",
+                "4",
+                "--tolerance",
+                "0",
+            ]
+            .map(String::from),
+        );
+        a
+    };
+    let whole = tmp.path().join("whole");
+    let o = opal(&args(&whole).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let out = tmp.path().join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_opal"))
+        .args(args(&out))
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut log = String::new();
+    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
+        let line = line.unwrap();
+        if line.starts_with("iteration 1:") {
+            let k = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+            assert!(k.success());
+        }
+        log.push_str(&line);
+        log.push('\n');
+    }
+    let st = child.wait().unwrap();
+    assert_eq!(st.code(), Some(130), "{log}");
+    assert!(log.contains("kept in") && log.contains("--resume"), "{log}");
+    assert!(out.join("checkpoint/state.json").exists());
+    assert!(!out.join("report.json").exists(), "no result after an interruption");
+
+    let mut a = args(&out);
+    a.push("--resume".into());
+    let o = opal(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("resuming after iteration"), "{err}");
+    assert!(!out.join("checkpoint").exists(), "the checkpoint is removed once the run finished");
+    let images = |d: &Path| -> Vec<(PathBuf, Vec<u8>)> {
+        let mut v: Vec<_> = walk(d)
+            .into_iter()
+            .filter(|p| p.extension().is_some_and(|e| e == "exr" || e == "png"))
+            .map(|p| (p.strip_prefix(d).unwrap().to_path_buf(), std::fs::read(&p).unwrap()))
+            .collect();
+        v.sort();
+        v
+    };
+    let (a, b) = (images(&whole), images(&out));
+    assert!(a.len() >= 5, "{} images", a.len());
+    assert_eq!(a.iter().map(|x| &x.0).collect::<Vec<_>>(), b.iter().map(|x| &x.0).collect::<Vec<_>>());
+    for (x, y) in a.iter().zip(&b) {
+        assert!(x.1 == y.1, "{} differs after the resume", x.0.display());
+    }
+}

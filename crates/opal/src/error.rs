@@ -34,6 +34,12 @@ pub enum Error {
         /// Why.
         why: String,
     },
+    /// The run was cancelled (e.g. Ctrl-C) before it finished.
+    #[error("interrupted: {kept}")]
+    Interrupted {
+        /// What was kept (e.g. "iterations 1-2 in OUT/checkpoint"), or that nothing was.
+        kept: String,
+    },
 }
 
 impl Error {

@@ -52,6 +52,7 @@
 
 mod albedo;
 pub mod atlas;
+mod checkpoint;
 pub mod colmap;
 mod direct;
 pub mod footprint;

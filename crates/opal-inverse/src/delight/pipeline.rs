@@ -45,10 +45,12 @@ pub fn delight(
         return Err(Error::invalid("objects", "no object could be unwrapped"));
     }
     timings.push("unwrap", t0.elapsed());
+    cancelled(s)?;
     // 2. direct irradiance (first: it shapes the prior of the super-resolved luminance maps)
     let t0 = StageClock::start();
     let avg = direct::direct_stage(&scene, &mut objects, s);
     timings.push("direct", t0.elapsed());
+    cancelled(s)?;
     // 3. per-view pose refinement (off by default); every later step sees the refined views
     let tp = StageClock::start();
     let (poses, refined) = pose::pipeline_stage(&scene, &objects, views, &s.poses, log, &mut warnings);
@@ -64,6 +66,7 @@ pub fn delight(
     let views: &[View] = corrected.as_deref().unwrap_or(views);
     luminance::luminance_maps(&inp, &mut objects, views, &pure, &mut warnings);
     timings.push("luminance", t0.elapsed());
+    cancelled(s)?;
     for o in &mut objects {
         initial_kd(o, s.indirect_share, avg);
     }
@@ -74,4 +77,13 @@ pub fn delight(
     // 6. outputs
     debug_dump(&objects, "final", s.debug.dump_dir.as_deref());
     Ok(assemble(Finished { objects, skipped, iterated, view_gains, poses, warnings }, timings, t_all))
+}
+
+/// `Err(Interrupted)` once `s.cancel` is set (a stage boundary before the iterations: nothing
+/// is kept yet).
+fn cancelled(s: &DelightSettings) -> Result<()> {
+    if s.cancel.as_ref().is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed)) {
+        return Err(Error::Interrupted { kept: iterate::kept(s, 0) });
+    }
+    Ok(())
 }

@@ -82,6 +82,15 @@ pub struct DelightSettings {
     pub poses: super::pose::PoseSettings,
     /// Debug and error-analysis outputs (all off by default).
     pub debug: DebugSettings,
+    /// Folder in which the state after each finished iteration is saved (`None`: no
+    /// checkpoints): the luminance, indirect irradiance and albedo maps and the statistics.
+    pub checkpoint: Option<std::path::PathBuf>,
+    /// Continue from the checkpoint in `checkpoint` instead of starting the iterations anew.
+    pub resume: bool,
+    /// Set (e.g. by a signal handler) to stop at the next stage or iteration boundary: the run
+    /// then returns [`opal::error::Error::Interrupted`], saying which iterations the checkpoint
+    /// keeps.
+    pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 /// Debug and error-analysis outputs of [`delight`](super::delight); [`Default`] = all off (no
@@ -120,6 +129,9 @@ impl Default for DelightSettings {
             view_gains: ViewGainSettings::default(),
             poses: super::pose::PoseSettings::default(),
             debug: DebugSettings::default(),
+            checkpoint: None,
+            resume: false,
+            cancel: None,
         }
     }
 }

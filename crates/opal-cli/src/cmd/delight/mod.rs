@@ -97,6 +97,11 @@ pub struct DelightArgs {
     /// refined poses are written to OUTPUT/transforms.json, the corrections to report.json.
     #[arg(long, default_value = "off")]
     pub refine_poses: String,
+    /// Continue an interrupted run from OUTPUT/checkpoint (written after every finished
+    /// iteration): give the same arguments as that run. The result is the same, bit for bit, as
+    /// an uninterrupted run's; a checkpoint made from other inputs or settings is refused.
+    #[arg(long)]
+    pub resume: bool,
     /// Seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -237,6 +242,9 @@ fn finite_or_null(x: f64) -> serde_json::Value {
     if x.is_finite() { json!(x) } else { json!(null) }
 }
 
+/// Folder (inside the output folder) of the checkpoints of an unfinished run.
+pub const CHECKPOINT: &str = "checkpoint";
+
 /// Runs the whole de-lighting with outputs; returns the report.
 pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serde_json::Value> {
     let desc = opal::scene::load::load_mitsuba_xml(&a.scene, &[])
@@ -351,6 +359,9 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         superres,
         view_gains: ViewGainSettings { mode, warn_ratio: a.gain_warn_ratio },
         debug: debug_settings(&a.diagnostics),
+        checkpoint: Some(a.output.join(CHECKPOINT)),
+        resume: a.resume,
+        cancel: Some(util::interrupt_flag()),
         ..Default::default()
     };
     let r = delight(&desc, &views, &settings, log)?;
@@ -697,7 +708,15 @@ pub fn run(a: DelightArgs) -> Result<i32> {
         rayon::ThreadPoolBuilder::new().num_threads(t.max(1)).build_global().ok();
     }
     let log = |l: &str| eprintln!("{l}");
-    let report = run_pipeline(&a, &log)?;
+    util::install_interrupt_handler();
+    let report = run_pipeline(&a, &log).map_err(|e| match e.downcast_ref::<opal::error::Error>() {
+        Some(opal::error::Error::Interrupted { .. }) => {
+            e.context("stopped on request; to continue, run the same command with --resume")
+        }
+        _ => e,
+    })?;
+    // finished: the checkpoint of the iterations is no longer needed
+    let _ = std::fs::remove_dir_all(a.output.join(CHECKPOINT));
     if a.json {
         let mut o = std::io::stdout().lock();
         writeln!(o, "{}", serde_json::to_string_pretty(&report)?)?;
@@ -752,6 +771,7 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         view_gains: "fixed".into(),
         gain_warn_ratio: 1.5,
         refine_poses: "off".into(),
+        resume: false,
         seed: 0,
         threads: None,
         json: false,

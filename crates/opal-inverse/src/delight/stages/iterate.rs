@@ -13,13 +13,14 @@
 use super::Inputs;
 use crate::delight::albedo::{fill_unseen, finish_luminance, quartiles, update_kd};
 use crate::delight::atlas::NO_TRI;
+use crate::delight::checkpoint;
 use crate::delight::timing::{StageClock, Timings};
 use crate::delight::views::{PureBuffer, View};
 use crate::delight::{
     DelightSettings, IterationStats, LightPaths, ObjectResult, UpdateRule, luminance, noise, reached_texels,
     recovered_desc, smooth_in_charts_masked, superres,
 };
-use opal::error::Result;
+use opal::error::{Error, Result};
 use opal::integrator::light_tracer::{self, IrradianceMaps, IrradianceTarget, LightTraceSettings};
 use opal::math::PI;
 use opal::scene::Scene;
@@ -86,9 +87,30 @@ pub(in crate::delight) fn iterate(
     let mut iterations = Vec::new();
     let mut converged = false;
     let mut light_paths = 0;
+    // checkpoints: the state the iterations start from, and the warnings they add
+    let fp = checkpoint::fingerprint(objects, s.seed, paths);
+    let first_warning = warnings.len();
+    let mut start = 1;
+    if s.resume {
+        let dir =
+            s.checkpoint.as_deref().ok_or_else(|| Error::invalid("resume", "no checkpoint folder given"))?;
+        let saved = checkpoint::load(dir, fp, objects)?;
+        for (o, m) in objects.iter_mut().zip(saved.maps) {
+            m.restore(o);
+        }
+        log(&format!("resuming after iteration {} (checkpoint {})", saved.iteration, dir.display()));
+        converged = saved.iterations.last().is_some_and(|st| st.max_rel_error < s.tolerance);
+        start = if converged { usize::MAX } else { saved.iteration + 1 };
+        iterations = saved.iterations;
+        light_paths = saved.light_paths;
+        warnings.extend(saved.warnings);
+    }
     let (mut lt_wall, mut lt_cpu, mut post_wall, mut post_cpu) = (0f64, 0f64, 0f64, 0f64);
     let t_it = StageClock::start();
-    for k in 1..=s.iterations {
+    for k in start..=s.iterations {
+        if s.cancel.as_ref().is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed)) {
+            return Err(Error::Interrupted { kept: kept(s, k - 1) });
+        }
         let t0 = std::time::Instant::now();
         let c0 = StageClock::start();
         let rdesc = recovered_desc(desc, objects);
@@ -186,6 +208,9 @@ pub(in crate::delight) fn iterate(
         ));
         let done = st.max_rel_error < s.tolerance;
         iterations.push(st);
+        if let Some(dir) = &s.checkpoint {
+            checkpoint::save(dir, fp, k, light_paths, objects, &iterations, &warnings[first_warning..])?;
+        }
         let (w, c) = c0.elapsed();
         post_wall += w;
         post_cpu += c;
@@ -198,6 +223,16 @@ pub(in crate::delight) fn iterate(
     timings.push("light_tracing", (lt_wall, lt_cpu));
     timings.push("iteration_post", (post_wall, post_cpu));
     Ok(Iterated { iterations, converged, light_paths })
+}
+
+/// What an interruption after iteration `done` leaves (for [`Error::Interrupted`]).
+pub(in crate::delight) fn kept(s: &DelightSettings, done: usize) -> String {
+    match (&s.checkpoint, done) {
+        (Some(dir), d) if d > 0 => {
+            format!("iterations 1-{d} of {} are kept in {}", s.iterations, dir.display())
+        }
+        _ => "no iteration had finished: nothing was kept".to_string(),
+    }
 }
 
 /// One object's part of pass `k` with the tracer's maps `m`: the smoothed indirect irradiance,
