@@ -53,6 +53,7 @@
 mod albedo;
 pub mod atlas;
 pub mod colmap;
+pub mod contact;
 mod direct;
 pub mod footprint;
 pub mod gains;
