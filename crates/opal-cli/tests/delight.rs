@@ -115,6 +115,7 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "regions",
         "max_region_rel_error_luminance",
         "rerenders",
+        "contact_edges",
         "light_paths_total",
         "timings_seconds",
         "cpu_seconds",

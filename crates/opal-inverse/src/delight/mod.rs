@@ -54,6 +54,7 @@ mod albedo;
 pub mod atlas;
 mod checkpoint;
 pub mod colmap;
+pub mod contact;
 mod direct;
 pub mod footprint;
 pub mod gains;

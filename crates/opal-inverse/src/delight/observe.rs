@@ -106,7 +106,7 @@ pub(crate) fn view_sample(
             continue;
         }
         let k = yi as usize * cam.width + xi as usize;
-        if pb.shape[k] != shape || pb.normal[k].dot(ng) < 0.999 {
+        if pb.shape[k] != shape || pb.normal[k].dot(ng) < pb.min_cos[k] {
             continue;
         }
         let c = v.image.data[k];

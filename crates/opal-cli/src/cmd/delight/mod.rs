@@ -3,11 +3,13 @@
 //! a glTF 2.0 binary of the recovered objects (`scene.glb`, see `crate::glb`), error maps, a
 //! convergence plot, re-renders and report.json / report.html.
 
+mod contact;
 mod html;
 
 use crate::util;
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use contact::ContactAccumulator;
 use opal::image::Image;
 use opal::integrator::path::{PathSettings, render};
 use opal::scene::Scene;
@@ -541,6 +543,7 @@ fn write_outputs(
     let mut regions = Vec::new();
     let mut max_region_err = 0f64;
     let mut rerenders = Vec::new();
+    let mut contact = ContactAccumulator::default();
     if a.rerender_spp > 0 {
         let rdesc = recovered_desc(desc, &r.objects);
         let mut rscene = Scene::build(&rdesc)?;
@@ -576,6 +579,7 @@ fn write_outputs(
                 "rerender": format!("rerender/{}.png", v.name), "exposure": exposure,
                 "error_map": err_png, "rel_bias_luminance": mean_err, "size": [v.image.width, v.image.height],
             }));
+            contact.add(&scene, v, &ro, &shapes);
             let masks = object_masks(&scene, v, &shapes);
             for (o, m) in r.objects.iter().zip(masks) {
                 let n = m.iter().filter(|&&b| b).count();
@@ -670,6 +674,7 @@ fn write_outputs(
         "regions": regions,
         "max_region_rel_error_luminance": max_region_err,
         "rerenders": rerenders,
+        "contact_edges": (a.rerender_spp > 0).then(|| contact.json()),
         "view_error_range": html::VIEW_ERROR_RANGE,
         "texel_error_range": html::TEXEL_ERROR_RANGE,
         "light_paths_total": r.light_paths,

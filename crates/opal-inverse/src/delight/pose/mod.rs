@@ -280,7 +280,7 @@ pub fn erode(pb: &PureBuffer, r: usize) -> PureBuffer {
             s0
         })
         .collect();
-    PureBuffer { width: w, height: h, shape, normal: pb.normal.clone() }
+    PureBuffer { width: w, height: h, shape, normal: pb.normal.clone(), min_cos: pb.min_cos.clone() }
 }
 
 /// Luminance map of one object from `views` (pure buffers `pure`, eroded), extended over the
