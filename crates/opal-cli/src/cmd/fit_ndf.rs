@@ -13,8 +13,8 @@ use opal::gonio::{Face, Side};
 use opal_inverse::export::{FaceModel, LightSide, bsdf_csv, ndf_table, zemax_bsdf};
 use opal_inverse::measured::Measured;
 use opal_inverse::ndf_fit::{
-    Candidate, Evaluation, Family, FitOn, FitOptions, FitReport, FitSetup, Model, Problem, ScaleFit,
-    ScaleMode, ScaleSetup, fit,
+    Candidate, DEFAULT_MIN_SNR, Evaluation, Family, FitOn, FitOptions, FitReport, FitSetup, Model, Problem,
+    ScaleFit, ScaleMode, ScaleSetup, fit,
 };
 use opal_inverse::scatter::zemax;
 use std::io::Write;
@@ -36,9 +36,9 @@ pub struct FitNdfArgs {
     pub output: PathBuf,
     /// NDF family: auto (ggx, beckmann, student; a richer model is kept only when it beats
     /// the noise, see docs/fit-ndf.md), beckmann, ggx, student (Student-t: α and tail γ) or
-    /// hybrid (the auto winner plus tabulated nodes of D near θm = 0) or dotted (GGX dots
-    /// covering a fitted fraction of a polished land; auto tries it when the single NDFs miss
-    /// the data by more than twice the noise).
+    /// hybrid (the auto winner plus tabulated nodes of D, each where the residual is largest)
+    /// or dotted (GGX or Beckmann dots covering a fitted fraction of a polished land; auto
+    /// tries it when the single NDFs miss the data by more than twice the noise).
     #[arg(long, default_value = "auto")]
     pub family: String,
     /// Also fit a peak shift δ (the NDF peaks on the cone θm = δ) in every family.
@@ -90,7 +90,7 @@ pub struct FitNdfArgs {
     pub floor: f64,
     /// Also use points below the floor whose value is at least this many standard errors
     /// (a dim diffuse lobe beside a specular spike); 0 = the floor alone.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = DEFAULT_MIN_SNR)]
     pub min_snr: f64,
     /// Calibration of the measured values: absolute (intensity per unit incident power), global
     /// (one unknown factor), per-incidence (one per incidence) or per-curve (one per incidence
@@ -645,6 +645,7 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
         max_iters: 40,
         entry: Some("rough".into()),
         floor: 0.01,
+        min_snr: DEFAULT_MIN_SNR,
         ..Default::default()
     };
     let o = fit_and_write(&a, &dir)?;

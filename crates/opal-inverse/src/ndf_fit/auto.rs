@@ -1,12 +1,15 @@
 //! The whole fit ([`fit`]): the one-parameter families, Student-t from the better of them,
 //! the dotted model (GGX or Beckmann dots on a polished land, each from a coarse grid start,
-//! the better at the check seed kept), hybrid nodes on top of the kept analytic model, every candidate re-simulated with the
+//! the better at the check seed kept), hybrid nodes on top of the kept analytic model (each
+//! where the residual is largest, `nodes`), every candidate re-simulated with the
 //! independent check seed and kept or rejected by the selection rule; what it fits
 //! ([`FitOptions`]) and what it found ([`FitReport`]).
 //!
 //! Tests: `crates/opal-inverse/tests/ndf_fit.rs`; `crates/opal-cli/tests/fit_ndf.rs`.
 
-use super::{Comparison, Evaluation, Family, FamilyFit, Model, Problem, check_seed, hybrid_spacing};
+use super::{
+    Comparison, Evaluation, Family, FamilyFit, Model, Problem, check_seed, hybrid_spacing, with_node,
+};
 use opal::bsdf::microfacet::Ndfs;
 
 /// `auto` fits the dotted model when the kept single-NDF model's check rms exceeds this many
@@ -151,15 +154,14 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
         }
     }
     if opts.family == Some(Family::Hybrid) {
+        // each node where the kept model misses the data most (in θm, at the check seed; see
+        // `nodes`), on a grid of spacing h
         let h = hybrid_spacing(&cands[best].fit.model);
-        for k in 1..=opts.hybrid_nodes {
+        for _ in 0..opts.hybrid_nodes {
             let pm = &cands[best].fit.model;
-            let mut m = pm.clone();
-            m.family = Family::Hybrid;
-            let mut nodes: Vec<(f64, f64)> = pm.nodes[..pm.nodes.len().saturating_sub(1)].to_vec();
-            nodes.push(((k - 1) as f64 * h, 1.0));
-            nodes.push((k as f64 * h, 1.0));
-            m.nodes = nodes;
+            let taken: Vec<f64> = pm.free_nodes().iter().map(|&i| pm.nodes[i].0).collect();
+            let Some(theta) = problem.residual_peak(&cands[best].check, h, &taken) else { break };
+            let m = with_node(pm, theta, h);
             let fit = problem.fit_hybrid(&m)?;
             let check = problem.check_fit(&fit)?;
             cands.push(Candidate { fit, check });

@@ -100,6 +100,10 @@ pub struct Model {
     /// Hybrid table: (θ radians, multiplier of the normalised analytic part at θ). The last
     /// node is the anchor (multiplier 1, not fitted) that joins the table to the analytic part.
     pub nodes: Vec<(f64, f64)>,
+    /// Per node of `nodes`: whether its multiplier is pinned at 1 (an anchor joining the table
+    /// to the analytic part, not fitted). A missing entry means fitted, except for the last
+    /// node, always an anchor.
+    pub pinned: Vec<bool>,
     /// Dotted face: fraction f ∈ (0, 1) of the face covered by rough dots carrying this NDF,
     /// the rest polished (`Some` when f is fitted).
     pub coverage: Option<f64>,
@@ -119,6 +123,7 @@ impl Model {
             gamma: (base == Family::Student).then_some(STUDENT_GAMMA_START),
             delta: None,
             nodes: Vec::new(),
+            pinned: Vec::new(),
             coverage: (family == Family::Dotted).then_some(DOTTED_COVERAGE_START),
         }
     }
@@ -172,11 +177,33 @@ impl Model {
         })
     }
 
+    /// Indices of the fitted hybrid nodes (every node but the last and the pinned ones).
+    pub fn free_nodes(&self) -> Vec<usize> {
+        (0..self.nodes.len().saturating_sub(1))
+            .filter(|&i| !self.pinned.get(i).copied().unwrap_or(false))
+            .collect()
+    }
+
+    /// The hybrid table's multiplier of the analytic part at θ (linear between the nodes, 1
+    /// outside the table).
+    pub fn multiplier_at(&self, theta: f64) -> f64 {
+        let n = &self.nodes;
+        match n.iter().position(|x| x.0 >= theta) {
+            Some(0) if n[0].0 > theta => 1.0,
+            Some(0) => n[0].1,
+            Some(i) => {
+                let (a, b) = (n[i - 1], n[i]);
+                a.1 + (b.1 - a.1) * (theta - a.0) / (b.0 - a.0)
+            }
+            None => 1.0,
+        }
+    }
+
     /// Number of fitted parameters.
     pub fn parameter_count(&self) -> usize {
         1 + self.gamma.is_some() as usize
             + self.delta.is_some() as usize
-            + self.nodes.len().saturating_sub(1)
+            + self.free_nodes().len()
             + self.coverage.is_some() as usize
     }
 
@@ -197,13 +224,16 @@ impl Model {
         }
         if !self.nodes.is_empty() {
             let base = self.base_ndf().ok();
+            let free = self.free_nodes();
             let nodes: Vec<serde_json::Value> = self
                 .nodes
                 .iter()
-                .map(|&(t, k)| {
+                .enumerate()
+                .map(|(i, &(t, k))| {
                     let d =
                         base.as_ref().map(|b| k * b.d(Vec3::new(t.sin() as f32, 0.0, t.cos() as f32)) as f64);
-                    serde_json::json!({"theta_deg": t.to_degrees(), "scale": k, "d_unnormalised": d})
+                    serde_json::json!({"theta_deg": t.to_degrees(), "scale": k, "d_unnormalised": d,
+                        "fitted": free.contains(&i)})
                 })
                 .collect();
             m.insert("hybrid_nodes".into(), nodes.into());
@@ -314,9 +344,7 @@ impl Model {
         let mut v = vec![self.alpha];
         v.extend(self.gamma);
         v.extend(self.delta.map(f64::to_degrees));
-        if self.nodes.len() > 1 {
-            v.extend(self.nodes[..self.nodes.len() - 1].iter().map(|n| n.1));
-        }
+        v.extend(self.free_nodes().iter().map(|&i| self.nodes[i].1));
         v.extend(self.coverage);
         v
     }
@@ -325,7 +353,7 @@ impl Model {
 /// Angular spacing of the hybrid nodes: a third of the analytic part's half width at half
 /// maximum in θm (measured on the NDF itself, from its peak outward), in [0.5°, 10°].
 pub fn hybrid_spacing(model: &Model) -> f64 {
-    let base = Model { nodes: Vec::new(), ..model.clone() };
+    let base = Model { nodes: Vec::new(), pinned: Vec::new(), ..model.clone() };
     let Ok(ndf) = base.ndf() else { return 2f64.to_radians() };
     let d = |t: f64| ndf.d(Vec3::new(t.sin() as f32, 0.0, t.cos() as f32)) as f64;
     let step = 0.05f64.to_radians();

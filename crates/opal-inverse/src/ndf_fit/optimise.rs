@@ -242,7 +242,7 @@ impl Problem {
         if start.delta.is_some() {
             coords.push(Coord::DeltaDeg);
         }
-        for k in 0..start.nodes.len().saturating_sub(1) {
+        for k in start.free_nodes() {
             coords.push(Coord::LnScale(k));
         }
         if start.coverage.is_some() {
@@ -276,7 +276,7 @@ impl Problem {
     /// the analytic part stay as fitted before the nodes were added).
     pub fn fit_hybrid(&self, start: &Model) -> opal::Result<FamilyFit> {
         let mut coords = vec![Coord::LnAlpha];
-        for k in 0..start.nodes.len().saturating_sub(1) {
+        for k in start.free_nodes() {
             coords.push(Coord::LnScale(k));
         }
         self.fit_coords(start, &coords, 0.5)

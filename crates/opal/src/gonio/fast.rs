@@ -1,12 +1,16 @@
 //! Fast photon loop for the common case: an infinite plate (far-field detectors) whose faces
 //! are polished or rough with single scattering (`Scattering::Single` / `SingleMitsuba`) on a
-//! GGX or Beckmann NDF. Finite plates, multiple scattering, the height-correlated G and
-//! numerical NDFs take the general loop (`Gonio::trace_photon`).
+//! GGX or Beckmann NDF, or dotted (`Face::Dotted`, an area mixture of two such surfaces). Finite
+//! plates, multiple scattering, the height-correlated G and numerical NDFs take the general
+//! loop (`Gonio::trace_photon`).
 //!
 //! Same physics, same random-number contract (photon j of incidence i draws from
 //! `Rng::new(seed, i, j)`, in the same order: beam cone, then per interaction one number for a
-//! polished face or three for a rough one), so results agree with the general loop in
-//! distribution (tested: `gonio::tests::fast_path_matches_general_path`). What makes it fast:
+//! polished face or three for a rough one; a dotted face chooses its part with the first number,
+//! rescaled to be the part's own first one), so results agree with the general loop in
+//! distribution (tested: `gonio::tests::fast_path_matches_general_path`, dotted faces
+//! included; at coverage 0 and 1 a dotted face is its land or its dots bit for bit:
+//! `gonio::tests::dotted_face_limits_are_bit_identical`). What makes it fast:
 //! * everything in f32 with the polynomial math of [`crate::fastmath`] (`sincos(2πu)` for the
 //!   beam cone and GGX, `exp`/`erfc`/`erfinv` for Beckmann), Fresnel with the constants of the
 //!   plate's index precomputed;
@@ -19,7 +23,8 @@
 //!   face; the directions and weights live in arrays (SoA) compacted after every round, and the
 //!   interaction itself (visible normal, Fresnel, reflection or refraction, G1) runs on `N`
 //!   photons at once with the lane-parallel math of [`crate::fastmath::wide`], branch-free
-//!   (both outcomes computed, per-lane selects). The random numbers are drawn per photon
+//!   (both outcomes computed, per-lane selects; a dotted face runs both parts and selects
+//!   per lane by the area choice). The random numbers are drawn per photon
 //!   (scalar PCG32) into arrays before each round; exits, detector tally and absorption are a
 //!   scalar pass over the round's photons in order.
 //!
@@ -57,11 +62,41 @@ pub(super) enum FastFace {
     Beckmann { ndf: Beckmann, mitsuba_g1: bool },
 }
 
+/// A face of the plate resolved for the fast loop: one surface, or an area mixture of two
+/// (`Face::Dotted`: `a` on the fraction `f`, else `b`).
+#[derive(Clone, Copy, Debug)]
+pub(super) enum FastSide {
+    Plain(FastFace),
+    Dotted { f: f32, a: FastFace, b: FastFace },
+}
+
+impl FastSide {
+    fn is_polished(&self) -> bool {
+        matches!(self, FastSide::Plain(FastFace::Polished))
+    }
+    fn has_beckmann(&self) -> bool {
+        let b = |f: &FastFace| matches!(f, FastFace::Beckmann { .. });
+        match self {
+            FastSide::Plain(x) => b(x),
+            FastSide::Dotted { a, b: land, .. } => b(a) || b(land),
+        }
+    }
+}
+
+/// The area choice of a dotted face from the first random number `u`, as the general loop
+/// makes it (`gonio::interact`): whether the photon meets `a`, and `u` rescaled to the chosen
+/// part (its own first random number).
+#[inline(always)]
+fn dotted_choice(f: f32, u: f32) -> (bool, f32) {
+    let (pick_a, ur) = if u < f { (true, u / f) } else { (false, (u - f) / (1.0 - f)) };
+    (pick_a, ur.min(1.0 - f32::EPSILON / 2.0))
+}
+
 /// The plate resolved for the fast loop.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct FastPlate {
-    front: FastFace,
-    back: FastFace,
+    front: FastSide,
+    back: FastSide,
     fresnel: Fresnel,
     thick: f32,
     mu: f32,
@@ -91,9 +126,20 @@ impl FastPlate {
                 Face::Dotted { .. } => None,
             }
         };
+        let side = |f: &Face| -> Option<FastSide> {
+            match f {
+                Face::Dotted { coverage, dots, land } => {
+                    if !(coverage.is_finite() && (0.0..=1.0).contains(coverage)) {
+                        return None;
+                    }
+                    Some(FastSide::Dotted { f: *coverage as f32, a: face(dots)?, b: face(land)? })
+                }
+                f => Some(FastSide::Plain(face(f)?)),
+            }
+        };
         Some(FastPlate {
-            front: face(&plate.front)?,
-            back: face(&plate.back)?,
+            front: side(&plate.front)?,
+            back: side(&plate.back)?,
             fresnel: Fresnel::new(plate.ior as f32),
             thick: plate.thickness_mm as f32,
             mu: plate.absorption_per_mm as f32,
@@ -161,6 +207,19 @@ fn interact_scalar(face: &FastFace, fr: &Fresnel, wo: Vec3, u0: f32, u1: f32, u2
         }
     };
     s.unwrap_or((Vec3::ZERO, 0.0))
+}
+
+/// `interact_scalar` for a plate side: a dotted side chooses its part with `u0` and passes the
+/// rescaled number on (as `gonio::interact`).
+#[cfg(test)]
+fn interact_scalar_side(side: &FastSide, fr: &Fresnel, wo: Vec3, u0: f32, u1: f32, u2: f32) -> (Vec3, f32) {
+    match side {
+        FastSide::Plain(face) => interact_scalar(face, fr, wo, u0, u1, u2),
+        FastSide::Dotted { f, a, b } => {
+            let (pick_a, ur) = dotted_choice(*f, u0);
+            interact_scalar(if pick_a { a } else { b }, fr, wo, ur, u1, u2)
+        }
+    }
 }
 
 /// Three lanes-of-f32 (a direction per lane).
@@ -445,6 +504,54 @@ fn interact_block<const N: usize>(
     (wi.flip_if_bottom(top), g, redo)
 }
 
+/// `interact_block` for a plate side: a dotted side runs both parts on every lane and keeps, lane
+/// by lane, the one its area choice (`dotted_choice` of `u0`) picked; only the picked part's
+/// lanes can ask for a redo.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn interact_side_block<const N: usize>(
+    side: &FastSide,
+    fr: &Fresnel,
+    tab: &[f32; TAB_NC * TAB_NU],
+    top: bool,
+    d: V3<N>,
+    u0: F<N>,
+    u1: F<N>,
+    u2: F<N>,
+    full: bool,
+) -> (V3<N>, F<N>, M<N>) {
+    match side {
+        FastSide::Plain(face) => interact_block(face, fr, tab, top, d, u0, u1, u2, full),
+        FastSide::Dotted { f, a, b } => interact_dotted_block(*f, a, b, fr, tab, top, d, u0, u1, u2, full),
+    }
+}
+
+/// The dotted arm of `interact_side_block`, kept out of line: inlining two more copies of the
+/// whole interaction into the photon loop (per kernel width and instruction set) made the
+/// crate's compilation many times slower. Out of line it is compiled for the baseline
+/// instruction set (the same bits: the lane math is IEEE f32 without contraction).
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn interact_dotted_block<const N: usize>(
+    f: f32,
+    a: &FastFace,
+    b: &FastFace,
+    fr: &Fresnel,
+    tab: &[f32; TAB_NC * TAB_NU],
+    top: bool,
+    d: V3<N>,
+    u0: F<N>,
+    u1: F<N>,
+    u2: F<N>,
+    full: bool,
+) -> (V3<N>, F<N>, M<N>) {
+    let pick_a = u0.lt(F::splat(f));
+    let ur = pick_a.select(u0 / f, (u0 - f) / (1.0 - f)).min(F::splat(1.0 - f32::EPSILON / 2.0));
+    let (wa, ga, ra) = interact_block(a, fr, tab, top, d, ur, u1, u2, full);
+    let (wb, gb, rb) = interact_block(b, fr, tab, top, d, ur, u1, u2, full);
+    (V3::select(pick_a, wa, wb), pick_a.select(ga, gb), (pick_a & ra) | (!pick_a & rb))
+}
+
 /// Photons traced together, stage by stage (the wavefront); a multiple of every lane count.
 const CHUNK: usize = 256;
 
@@ -580,8 +687,7 @@ impl Gonio {
         let mut wf = Wavefront::new();
         // the Beckmann quantile table (built on first use; a dummy for other faces)
         static NONE: [f32; TAB_NC * TAB_NU] = [0.0; TAB_NC * TAB_NU];
-        let beckmann = |f: &FastFace| matches!(f, FastFace::Beckmann { .. });
-        let tab: &[f32; TAB_NC * TAB_NU] = if beckmann(&fp.front) || beckmann(&fp.back) {
+        let tab: &[f32; TAB_NC * TAB_NU] = if fp.front.has_beckmann() || fp.back.has_beckmann() {
             slope_table().try_into().expect("table size")
         } else {
             &NONE
@@ -657,18 +763,34 @@ impl Gonio {
             acc.interactions += n as u64;
             let top = round % 2 == 0;
             let face = if top { &fp.front } else { &fp.back };
-            let polished = matches!(face, FastFace::Polished);
+            let polished = face.is_polished();
             // random numbers of the round, per photon in the contract's order
-            if polished {
-                for i in 0..n {
-                    wf.u0[i] = wf.rng[i].next_f32();
+            match face {
+                FastSide::Plain(FastFace::Polished) => {
+                    for i in 0..n {
+                        wf.u0[i] = wf.rng[i].next_f32();
+                    }
                 }
-            } else {
-                for i in 0..n {
-                    let rng = &mut wf.rng[i];
-                    wf.u0[i] = rng.next_f32();
-                    wf.u1[i] = rng.next_f32();
-                    wf.u2[i] = rng.next_f32();
+                FastSide::Plain(_) => {
+                    for i in 0..n {
+                        let rng = &mut wf.rng[i];
+                        wf.u0[i] = rng.next_f32();
+                        wf.u1[i] = rng.next_f32();
+                        wf.u2[i] = rng.next_f32();
+                    }
+                }
+                FastSide::Dotted { f, a, b } => {
+                    // the area choice uses the first number; a rough part draws two more
+                    for i in 0..n {
+                        let rng = &mut wf.rng[i];
+                        let u = rng.next_f32();
+                        wf.u0[i] = u;
+                        let part = if dotted_choice(*f, u).0 { a } else { b };
+                        if !matches!(part, FastFace::Polished) {
+                            wf.u1[i] = rng.next_f32();
+                            wf.u2[i] = rng.next_f32();
+                        }
+                    }
                 }
             }
             // the interaction, N photons at a time
@@ -681,7 +803,7 @@ impl Gonio {
                 };
                 let (u0, u1, u2) =
                     (F::load(&wf.u0[s.clone()]), F::load(&wf.u1[s.clone()]), F::load(&wf.u2[s.clone()]));
-                let (wi, g, redo) = interact_block::<N>(face, &fr, tab, top, d, u0, u1, u2, false);
+                let (wi, g, redo) = interact_side_block::<N>(face, &fr, tab, top, d, u0, u1, u2, false);
                 wi.x.store(&mut wf.nx[s.clone()]);
                 wi.y.store(&mut wf.ny[s.clone()]);
                 wi.z.store(&mut wf.nz[s.clone()]);
@@ -704,7 +826,8 @@ impl Gonio {
                     }
                 }
                 let d = V3 { x: F(g[0]), y: F(g[1]), z: F(g[2]) };
-                let (wi, w, _) = interact_block::<N>(face, &fr, tab, top, d, F(g[3]), F(g[4]), F(g[5]), true);
+                let (wi, w, _) =
+                    interact_side_block::<N>(face, &fr, tab, top, d, F(g[3]), F(g[4]), F(g[5]), true);
                 for (l, &i) in blk.iter().enumerate() {
                     let i = i as usize;
                     (wf.nx[i], wf.ny[i], wf.nz[i], wf.g[i]) = (wi.x.0[l], wi.y.0[l], wi.z.0[l], w.0[l]);
@@ -776,12 +899,12 @@ mod tests {
     /// Every lane of the SIMD interaction equals the scalar interaction bit for bit (new
     /// direction and weight factor; the direction of a lost sample is irrelevant): all lanes
     /// with the full Beckmann iteration, the lanes not flagged for a redo without it (and the
-    /// flagged ones must be rare); for 8 and 16 lanes, every face kind, both faces, random
+    /// flagged ones must be rare); for 8 and 16 lanes, every face kind and dotted sides (area mixtures), both faces, random
     /// directions from both sides (plus normal incidence).
     fn check_kernels<const N: usize>() {
         let fr = Fresnel::new(1.49);
         let tab: &[f32; TAB_NC * TAB_NU] = slope_table().try_into().unwrap();
-        let faces = [
+        let plain = [
             FastFace::Polished,
             FastFace::Ggx(Ggx::new(0.15).unwrap()),
             FastFace::Ggx(Ggx::new(0.6).unwrap()),
@@ -789,6 +912,11 @@ mod tests {
             FastFace::Beckmann { ndf: Beckmann::new(0.25).unwrap(), mitsuba_g1: false },
             FastFace::Beckmann { ndf: Beckmann::new(0.8).unwrap(), mitsuba_g1: false },
         ];
+        let mut faces: Vec<FastSide> = plain.iter().map(|&f| FastSide::Plain(f)).collect();
+        // dotted sides: rough dots on a polished land, and two rough parts
+        faces.push(FastSide::Dotted { f: 0.35, a: plain[1], b: FastFace::Polished });
+        faces.push(FastSide::Dotted { f: 0.6, a: plain[3], b: FastFace::Polished });
+        faces.push(FastSide::Dotted { f: 0.25, a: plain[5], b: plain[2] });
         let mut rng = Rng::new(5, 0, 0);
         for face in &faces {
             let (mut lanes, mut redone, mut lost) = (0usize, 0usize, 0usize);
@@ -808,7 +936,7 @@ mod tests {
                     let flip = |v: Vec3| if top { v } else { Vec3::new(v.x, -v.y, -v.z) };
                     for full in [false, true] {
                         let (wi, g, redo) =
-                            interact_block::<N>(face, &fr, tab, top, dv, F(u0), F(u1), F(u2), full);
+                            interact_side_block::<N>(face, &fr, tab, top, dv, F(u0), F(u1), F(u2), full);
                         for l in 0..N {
                             if full {
                                 assert!(!redo.get(l));
@@ -819,7 +947,7 @@ mod tests {
                                     continue;
                                 }
                             }
-                            let (e, ge) = interact_scalar(face, &fr, flip(-d[l]), u0[l], u1[l], u2[l]);
+                            let (e, ge) = interact_scalar_side(face, &fr, flip(-d[l]), u0[l], u1[l], u2[l]);
                             let e = flip(e);
                             let what = format!("{face:?} top {top} full {full} d {}", d[l]);
                             assert_eq!(g.0[l].to_bits(), ge.to_bits(), "{what}: weight");

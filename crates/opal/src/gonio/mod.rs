@@ -34,8 +34,9 @@
 //! workflow can call [`Gonio::run_plate`] many times with the same seed (common random numbers)
 //! and a different rough face.
 //!
-//! Two photon loops: `fast` (infinite plate, polished faces and single-scattering GGX or
-//! Beckmann faces: f32 fast math, NDF resolved once, see `gonio/fast.rs`) and the general
+//! Two photon loops: `fast` (infinite plate, polished faces, single-scattering GGX or
+//! Beckmann faces and dotted faces of these: f32 fast math, NDF resolved once, see
+//! `gonio/fast.rs`) and the general
 //! `trace_photon` (finite plates, multiple scattering, height-correlated G, numerical NDFs).
 //! Both follow the same random-number contract.
 //!

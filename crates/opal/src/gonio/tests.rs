@@ -226,7 +226,8 @@ fn detector_lookup_matches_brute_force() {
     }
 }
 
-/// The fast loop (infinite plate, GGX/Beckmann single scattering) against the general loop:
+/// The fast loop (infinite plate, GGX/Beckmann single scattering, plain or dotted faces) against
+/// the general loop:
 /// different sampling algorithms, same model, so totals and detectors must agree within the
 /// Monte-Carlo noise (σ of the difference of two independent estimates, an upper bound here:
 /// the shared random numbers correlate the runs positively).
@@ -236,14 +237,19 @@ fn fast_path_matches_general_path() {
     let g = Gonio::new(setup(&[0.0, 60.0, 75.0], n, 0.5)).unwrap();
     let general = g.clone().with_general_loop(true);
     let (mut compared, mut bad) = (0usize, 0usize);
-    for (ndf, scattering) in [
-        (Ndfs::ggx(0.35), Scattering::Single),
-        (Ndfs::beckmann(0.25), Scattering::Single),
-        (Ndfs::beckmann(0.25), Scattering::SingleMitsuba),
+    for (ndf, scattering, coverage) in [
+        (Ndfs::ggx(0.35), Scattering::Single, None),
+        (Ndfs::beckmann(0.25), Scattering::Single, None),
+        (Ndfs::beckmann(0.25), Scattering::SingleMitsuba, None),
+        (Ndfs::ggx(0.3), Scattering::Single, Some(0.35)),
+        (Ndfs::beckmann(0.4), Scattering::SingleMitsuba, Some(0.6)),
     ] {
         for entry_rough in [false, true] {
             for mu in [0.0, 0.1] {
-                let rough = Face::Rough { ndf: ndf.clone(), scattering };
+                let rough = match coverage {
+                    None => Face::Rough { ndf: ndf.clone(), scattering },
+                    Some(f) => Face::dotted(f, ndf.clone(), scattering),
+                };
                 let p = if entry_rough {
                     plate(rough, Face::Polished, mu)
                 } else {
@@ -252,8 +258,10 @@ fn fast_path_matches_general_path() {
                 assert!(fast::FastPlate::new(&p).is_some());
                 let (a, b) = (g.run_plate(&p).unwrap(), general.run_plate(&p).unwrap());
                 for (x, y) in a.incidences.iter().zip(&b.incidences) {
-                    let what =
-                        format!("{ndf:?} {scattering:?} rough entry {entry_rough} μ {mu} θ {}", x.incidence);
+                    let what = format!(
+                        "{ndf:?} {scattering:?} coverage {coverage:?} rough entry {entry_rough} μ {mu} θ {}",
+                        x.incidence
+                    );
                     assert_eq!(x.bad_photons, 0);
                     assert!((x.r + x.t + x.lost + x.absorbed - 1.0).abs() < 1e-5, "{what}");
                     for (name, u, v) in [("R", x.r, y.r), ("T", x.t, y.t), ("lost", x.lost, y.lost)] {
@@ -299,7 +307,8 @@ fn mitsuba_g1_changes_only_beckmann() {
 }
 
 /// The photon loop compiled for every instruction set the CPU offers (portable, AVX2, AVX-512)
-/// gives the same accumulators bit for bit, for every face kind the fast loop handles, both
+/// gives the same accumulators bit for bit, for every face kind the fast loop handles (dotted
+/// faces included), both
 /// entries, with and without absorption, collimated normal incidence (the Beckmann sampler's
 /// scalar redo path) and grazing incidence.
 #[test]
@@ -319,6 +328,8 @@ fn simd_and_portable_loops_agree_bit_for_bit() {
         Face::Rough { ndf: Ndfs::ggx(0.3), scattering: Scattering::Single },
         Face::Rough { ndf: Ndfs::beckmann(0.25), scattering: Scattering::Single },
         Face::Rough { ndf: Ndfs::beckmann(0.25), scattering: Scattering::SingleMitsuba },
+        Face::dotted(0.35, Ndfs::ggx(0.3), Scattering::Single),
+        Face::dotted(0.5, Ndfs::beckmann(0.25), Scattering::Single),
     ];
     let mut compared = 0;
     for (fi, rough) in faces.iter().enumerate() {
@@ -364,26 +375,32 @@ fn simd_and_portable_loops_agree_bit_for_bit() {
             }
         }
     }
-    assert!(compared >= 32 || kinds.is_empty());
+    assert!(compared >= 48 || kinds.is_empty());
 }
 
 /// A dotted face with coverage 0 or 1 is its land or its dots, photon for photon (the area
-/// choice reuses the component's first random number unchanged at f = 0 and f = 1).
+/// choice reuses the component's first random number unchanged at f = 0 and f = 1), in the
+/// general loop and in the fast loop.
 #[test]
 fn dotted_face_limits_are_bit_identical() {
-    let g = Gonio::new(setup(&[0.0, 60.0], 20_000, 0.5)).unwrap();
-    let ndf = Ndfs::ggx(0.3);
-    let rough = Face::Rough { ndf: ndf.clone(), scattering: Scattering::Single };
-    let general = g.clone().with_general_loop(true);
-    for entry in [true, false] {
-        let mk =
-            |f: Face| if entry { plate(f, Face::Polished, 0.05) } else { plate(Face::Polished, f, 0.05) };
-        for (cov, same) in [(0.0, Face::Polished), (1.0, rough.clone())] {
-            let d = general.run_plate(&mk(Face::dotted(cov, ndf.clone(), Scattering::Single))).unwrap();
-            let s = general.run_plate(&mk(same)).unwrap();
-            for (x, y) in d.incidences.iter().zip(&s.incidences) {
-                assert_eq!(x.value, y.value, "coverage {cov} entry {entry}");
-                assert_eq!((x.r, x.t, x.lost, x.absorbed), (y.r, y.t, y.lost, y.absorbed));
+    let fast = Gonio::new(setup(&[0.0, 60.0], 20_000, 0.5)).unwrap();
+    let general = fast.clone().with_general_loop(true);
+    for ndf in [Ndfs::ggx(0.3), Ndfs::beckmann(0.25)] {
+        let rough = Face::Rough { ndf: ndf.clone(), scattering: Scattering::Single };
+        for (g, name) in [(&general, "general"), (&fast, "fast")] {
+            for entry in [true, false] {
+                let mk = |f: Face| {
+                    if entry { plate(f, Face::Polished, 0.05) } else { plate(Face::Polished, f, 0.05) }
+                };
+                for (cov, same) in [(0.0, Face::Polished), (1.0, rough.clone())] {
+                    let d = g.run_plate(&mk(Face::dotted(cov, ndf.clone(), Scattering::Single))).unwrap();
+                    let s = g.run_plate(&mk(same)).unwrap();
+                    for (x, y) in d.incidences.iter().zip(&s.incidences) {
+                        let what = format!("{name} loop {ndf:?} coverage {cov} entry {entry}");
+                        assert_eq!(x.value, y.value, "{what}");
+                        assert_eq!((x.r, x.t, x.lost, x.absorbed), (y.r, y.t, y.lost, y.absorbed), "{what}");
+                    }
+                }
             }
         }
     }
