@@ -43,13 +43,29 @@ enum Command {
 fn main() {
     let cli = Cli::parse();
     util::set_quiet(cli.quiet);
+    // `delight` keeps its finished iterations on Ctrl-C (its own handler); the others stop
     let result = match cli.command {
         Command::Delight(a) => cmd::delight::run(a),
-        Command::Demo(a) => cmd::demo::run(a),
-        Command::FitNdf(a) => cmd::fit_ndf::run(a),
-        Command::Gonio(a) => cmd::gonio::run(a),
-        Command::Render(a) => cmd::render::run(a),
-        Command::Brdf(a) => cmd::brdf::run(a),
+        Command::Demo(a) => {
+            util::install_exit_handler("demo");
+            cmd::demo::run(a)
+        }
+        Command::FitNdf(a) => {
+            util::install_exit_handler("fit-ndf");
+            cmd::fit_ndf::run(a)
+        }
+        Command::Gonio(a) => {
+            util::install_exit_handler("gonio");
+            cmd::gonio::run(a)
+        }
+        Command::Render(a) => {
+            util::install_exit_handler("render");
+            cmd::render::run(a)
+        }
+        Command::Brdf(a) => {
+            util::install_exit_handler("brdf");
+            cmd::brdf::run(a)
+        }
     };
     match result {
         Ok(code) => std::process::exit(code),

@@ -38,6 +38,18 @@ pub fn install_interrupt_handler() {
     let _ = r;
 }
 
+/// Ctrl-C / SIGTERM for the commands without checkpoints: says that no output was written
+/// (outputs are renamed into place only when complete; a half-written one stays under a
+/// `.opal-tmp-*` name) and exits with code 130.
+pub fn install_exit_handler(command: &'static str) {
+    let _ = ctrlc::set_handler(move || {
+        eprintln!(
+            "interrupted: `opal {command}` stopped before it finished; no output file of this run was written"
+        );
+        std::process::exit(130);
+    });
+}
+
 /// A progress bar on stderr with `len` steps; hidden with `--quiet` or when stderr is not a
 /// terminal.
 pub fn progress(len: u64, msg: &str) -> ProgressBar {

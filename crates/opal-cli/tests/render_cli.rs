@@ -209,3 +209,30 @@ fn the_same_seed_writes_the_same_bytes_on_one_and_two_threads() {
     assert!(files[0].len() > 1000);
     assert!(files.iter().all(|f| *f == files[0]), "EXR bytes differ between runs");
 }
+
+/// Ctrl-C during `opal render`: exit code 130, a message saying nothing was written, and no
+/// file under the output's name.
+#[cfg(unix)]
+#[test]
+fn interrupted_render_writes_nothing_and_exits_130() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("v.exr");
+    let child = opal()
+        .arg("render")
+        .arg(cbox_dir().join("scene.xml"))
+        .arg("-o")
+        .arg(&out)
+        .args(["--spp", "100000", "--quiet"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // the scene loads within a few hundred milliseconds; the render takes minutes
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let k = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(k.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert!(err.contains("no output file of this run was written"), "{err}");
+    assert!(!out.exists());
+}
