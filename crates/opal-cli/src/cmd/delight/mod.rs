@@ -693,9 +693,7 @@ fn write_outputs(
 /// Runs `opal delight`; returns the exit code.
 pub fn run(a: DelightArgs) -> Result<i32> {
     util::ensure_not_input(&a.output, &[&a.scene, &a.views])?;
-    if let Some(t) = a.threads {
-        rayon::ThreadPoolBuilder::new().num_threads(t.max(1)).build_global().ok();
-    }
+    util::set_threads(a.threads);
     let log = |l: &str| eprintln!("{l}");
     let report = run_pipeline(&a, &log)?;
     if a.json {
