@@ -446,8 +446,10 @@ fn write_outputs(
                 )?)
             })?;
             let mut ei = Image::new(o.atlas.width, o.atlas.height);
+            // Unobserved texels (NaN in the library's map) are 0 here: no NaN in an output
+            // file; the PNG marks them.
             for (p, v) in ei.data.iter_mut().zip(e) {
-                *p = opal::spectrum::Spectrum::splat(*v);
+                *p = opal::spectrum::Spectrum::splat(if v.is_finite() { *v } else { 0.0 });
             }
             exr(&out.join(format!("errors/iter_{:02}_{}.exr", it.iteration, o.id)), &ei)?;
             Ok(())
