@@ -113,7 +113,7 @@ pub(super) fn finalize_mesh(
     let nmat = lin.inverse().transpose();
     for (k, p) in m.positions.iter_mut().enumerate() {
         let w = to_world.transform_point3(p.as_dvec3());
-        if !(w.abs().max_element() <= MAX_COORDINATE) {
+        if !w.is_finite() || w.abs().max_element() > MAX_COORDINATE {
             return Err(loc.err(format!(
                 "{what}: vertex {k} lands at ({:e}, {:e}, {:e}) in world space, beyond ±{MAX_COORDINATE:e} \
                  (the f32 tracer squares coordinates; scale the scene down)",
