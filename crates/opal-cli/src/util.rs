@@ -8,6 +8,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 static QUIET: AtomicBool = AtomicBool::new(false);
 
+/// Sets the number of worker threads of the global pool (`None`: all cores). Results never
+/// depend on it (the determinism tests run each command on 1 and 2 threads).
+pub fn set_threads(threads: Option<usize>) {
+    if let Some(t) = threads {
+        rayon::ThreadPoolBuilder::new().num_threads(t.max(1)).build_global().ok();
+    }
+}
+
 /// Hide progress bars from now on.
 pub fn set_quiet(q: bool) {
     QUIET.store(q, Ordering::Relaxed);

@@ -967,3 +967,14 @@ fn blendbsdf_is_a_dotted_face() {
     );
     assert!(m.contains("same index"), "{m}");
 }
+
+/// Found by `fuzz/` (target image_exr, the file committed as found): a header whose data
+/// window declares ~2^52 samples made the exr crate try to allocate them. Now refused from the
+/// header, naming the size.
+#[test]
+fn exr_with_an_absurd_data_window_is_refused_before_allocating() {
+    let p = data("fuzz/exr_huge_data_window.exr");
+    for e in [read_image(&p).unwrap_err().to_string(), read_exr_channels(&p).unwrap_err().to_string()] {
+        assert!(e.contains("exr_huge_data_window.exr") && e.contains("above the limit"), "{e}");
+    }
+}

@@ -71,6 +71,9 @@ pub struct CheckArgs {
     /// Seed of the Monte Carlo cross-check.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Worker threads (default: all cores); the output does not depend on it.
+    #[arg(long)]
+    threads: Option<usize>,
     /// Print one JSON object per model (an array when several models are given).
     #[arg(long)]
     json: bool,
@@ -338,7 +341,10 @@ fn describe_fit(r: &FitReport) -> String {
 /// Runs `opal brdf`; returns the exit code.
 pub fn run(args: BrdfArgs) -> Result<i32> {
     match args.cmd {
-        BrdfCommand::Check(a) => check(a),
+        BrdfCommand::Check(a) => {
+            crate::util::set_threads(a.threads);
+            check(a)
+        }
         BrdfCommand::FitNorm(a) => fit(a),
         BrdfCommand::List => {
             for m in registry::models() {

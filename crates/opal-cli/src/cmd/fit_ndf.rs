@@ -63,6 +63,9 @@ pub struct FitNdfArgs {
     /// Seed of the common random numbers.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Worker threads (default: all cores); the output does not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
     /// Print fit.json on stdout.
     #[arg(long)]
     pub json: bool,
@@ -587,6 +590,7 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
 /// `opal fit-ndf …`: exit 0 on a converged fit, 1 when an optimiser did not converge (the
 /// outputs are still written), 2 on bad input.
 pub fn run(a: FitNdfArgs) -> Result<i32> {
+    crate::util::set_threads(a.threads);
     let mut inputs: Vec<&Path> = a.measured.iter().map(PathBuf::as_path).collect();
     if let Some(p) = &a.plate {
         inputs.push(p);

@@ -37,6 +37,9 @@ pub struct SimulateArgs {
     /// Random seed.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Worker threads (default: all cores); the output does not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
     /// Also plot value vs detector angle (PNG or SVG by extension).
     #[arg(long)]
     pub plot: Option<PathBuf>,
@@ -206,6 +209,7 @@ pub fn run(args: GonioArgs) -> Result<i32> {
 }
 
 fn run_simulate(a: SimulateArgs) -> Result<i32> {
+    crate::util::set_threads(a.threads);
     let file = match &a.plate {
         Some(p) => read_plate_file(p)?,
         None => PlateFile::default(),

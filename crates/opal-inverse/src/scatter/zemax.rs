@@ -390,6 +390,14 @@ fn angle_list(
     if n == 0 {
         return Err(tk.err_at(key, format!("{name}: empty list (count 0)")));
     }
+    // Each angle is a token: a count beyond what is left is an error before any allocation
+    // (a fuzzed count of 2 555 555 555 asked for 20 GB).
+    let left = tk.toks.len() - tk.pos;
+    if n > left {
+        return Err(
+            tk.err_at(&ct, format!("{name}: the count {n} exceeds the {left} numbers left in the file"))
+        );
+    }
     let mut v = Vec::with_capacity(n);
     for i in 0..n {
         let what = format!("{name} angle {} of {n}", i + 1);
@@ -601,7 +609,9 @@ fn data_section(
     if !t.text.eq_ignore_ascii_case("databegin") {
         return Err(tk.err_at(&t, format!("expected DataBegin after {channel}, found {:?}", t.text)));
     }
-    let mut blocks = Vec::with_capacity(nrot * aoi.len());
+    // Capacities bounded by the tokens left: the counts come from the file.
+    let left = tk.toks.len() - tk.pos;
+    let mut blocks = Vec::with_capacity((nrot * aoi.len()).min(left));
     for r in 0..nrot {
         for &a in aoi {
             let mut tis = None;
@@ -613,7 +623,7 @@ fn data_section(
                     tk.number(&format!("the TIS value of {channel} block (rotation {}, AOI {a}°)", r + 1))?,
                 );
             }
-            let mut values = Vec::with_capacity(per_block);
+            let mut values = Vec::with_capacity(per_block.min(tk.toks.len() - tk.pos));
             for k in 0..per_block {
                 if let Some(t) = tk.peek()
                     && (t.text.eq_ignore_ascii_case("dataend") || t.text.eq_ignore_ascii_case("tis"))

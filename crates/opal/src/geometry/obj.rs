@@ -123,6 +123,17 @@ pub fn read_obj(path: &Path, flip_tex_coords: bool) -> Result<TriangleMesh> {
         cleaned.push_str(line.split('#').next().unwrap_or(""));
         cleaned.push('\n');
     }
+    // tobj overflows (a panic with debug assertions) on negative indices reaching before the
+    // first element and on huge ones (found by fuzz/, target obj): faces with a `-` or an index
+    // of 10+ digits are checked by the `prescan` first.
+    let risky_faces = cleaned.lines().any(|l| {
+        let l = l.trim_start();
+        (l.starts_with("f ") || l.starts_with("f\t"))
+            && (l.contains('-') || l.split(|c: char| !c.is_ascii_digit()).any(|d| d.len() > 9))
+    });
+    if risky_faces {
+        prescan(path, &text)?;
+    }
     let mut reader = std::io::BufReader::new(cleaned.as_bytes());
     // Fast path: tobj parses; the line-by-line `prescan` (which locates problems by line and
     // column) runs only when tobj fails or the result holds non-finite values.
@@ -191,6 +202,27 @@ mod tests {
         let p = dir.join(name);
         std::fs::write(&p, s).unwrap();
         p
+    }
+
+    /// Found by `fuzz/` (target obj): tobj overflowed on a negative texture index reaching
+    /// before the first `vt` (and on huge indices); now a located error.
+    #[test]
+    fn negative_or_huge_indices_out_of_range_are_errors_not_panics() {
+        let d = tempfile::tempdir().unwrap();
+        let head = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\n";
+        for (face, needle) in [
+            ("f 1/1/1 2/-15/1 3/3/1", "index -15 out of range"),
+            ("f -9 2 3", "index -9 out of range"),
+            ("f 1/1/1 2/2/1 3/18446744073709551615/1", "malformed face vertex"),
+            ("f 1/1/1 2/2/1 3/4611686018427387904/1", "out of range"),
+        ] {
+            let p = write(d.path(), "m.obj", &format!("{head}{face}\n"));
+            let e = read_obj(&p, false).unwrap_err().to_string();
+            assert!(e.contains("m.obj:8:") && e.contains(needle), "{face}: {e}");
+        }
+        // negative indices in range still read
+        let p = write(d.path(), "ok.obj", &format!("{head}f -3/-3/-1 -2/-2/-1 -1/-1/-1\n"));
+        assert_eq!(read_obj(&p, false).unwrap().indices.len(), 1);
     }
 
     #[test]

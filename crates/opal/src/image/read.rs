@@ -82,6 +82,10 @@ fn read_with_image_crate(path: &Path) -> Result<Image> {
     Ok(Image { width: w, height: h, data })
 }
 
+/// Most samples (pixels × channels, per layer) an EXR may declare: 2^30 f32 = 4 GiB (e.g.
+/// 16 384² RGBA); larger headers are refused before anything is allocated.
+pub const MAX_EXR_SAMPLES: u64 = 1 << 30;
+
 /// Reads every channel of the first (or only) layers of an EXR file: `(width, height,
 /// channels)`, each channel `width * height` values, row 0 at the top. Channel names are the
 /// file's names (`albedo.R`); in multi-part files with named parts, `part.channel`.
@@ -92,6 +96,23 @@ pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, 
             path,
             std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
         ));
+    }
+    // The exr crate allocates every channel from the header's data window before reading a
+    // pixel: a corrupt or absurd window (fuzz target image_exr found 2^52 samples) must be
+    // refused first.
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| decode_err(path, e))?;
+    for h in meta.headers.iter() {
+        let (w, ht) = (h.layer_size.width(), h.layer_size.height());
+        let samples = (w as u128) * (ht as u128) * (h.channels.list.len() as u128);
+        if samples > MAX_EXR_SAMPLES as u128 {
+            return Err(decode_err(
+                path,
+                format!(
+                    "data window {w}×{ht} with {} channels is {samples} samples, above the limit of {MAX_EXR_SAMPLES}",
+                    h.channels.list.len()
+                ),
+            ));
+        }
     }
     let img = read()
         .no_deep_data()

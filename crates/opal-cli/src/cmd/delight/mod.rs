@@ -459,8 +459,10 @@ fn write_outputs(
                 )?)
             })?;
             let mut ei = Image::new(o.atlas.width, o.atlas.height);
+            // Unobserved texels (NaN in the library's map) are 0 here: no NaN in an output
+            // file; the PNG marks them.
             for (p, v) in ei.data.iter_mut().zip(e) {
-                *p = opal::spectrum::Spectrum::splat(*v);
+                *p = opal::spectrum::Spectrum::splat(if v.is_finite() { *v } else { 0.0 });
             }
             exr(&out.join(format!("errors/iter_{:02}_{}.exr", it.iteration, o.id)), &ei)?;
             Ok(())
@@ -709,9 +711,7 @@ fn write_outputs(
 /// Runs `opal delight`; returns the exit code.
 pub fn run(a: DelightArgs) -> Result<i32> {
     util::ensure_not_input(&a.output, &[&a.scene, &a.views])?;
-    if let Some(t) = a.threads {
-        rayon::ThreadPoolBuilder::new().num_threads(t.max(1)).build_global().ok();
-    }
+    util::set_threads(a.threads);
     let log = |l: &str| eprintln!("{l}");
     util::install_interrupt_handler();
     let report = run_pipeline(&a, &log).map_err(|e| match e.downcast_ref::<opal::error::Error>() {

@@ -236,3 +236,16 @@ fn latin1_comment_reads() {
     let _ = std::fs::remove_file(&f);
     assert_eq!(t.unwrap(), parse(SYM, &p()).unwrap());
 }
+
+/// Found by `fuzz/` (target zemax_bsdf): a huge list count was allocated before the list was
+/// read (20 GB for 2 555 555 555 angles). Now refused at the count, naming it.
+#[test]
+fn huge_counts_are_refused_before_allocating() {
+    let text =
+        "# spe BRDF\nSampleRotation 1\n0\nAngleOfIncidence 2555555555 10 2\nDataBegin\n2 0.3 0.05\nDataEnd\n";
+    let e = err(text);
+    assert!(e.contains("t.BSDF:4:") && e.contains("2555555555") && e.contains("exceeds"), "{e}");
+    let text = SYM.replace("ScatterRadial  4\n", "ScatterRadial  18446744073709551615\n");
+    let e = err(&text);
+    assert!(e.contains("18446744073709551615") && e.contains("exceeds"), "{e}");
+}

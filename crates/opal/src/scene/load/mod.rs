@@ -37,7 +37,7 @@ pub use crate::geometry::shapes::{
     SPHERE_SEGMENTS_PHI, SPHERE_SEGMENTS_THETA, cube_mesh, rectangle_mesh, sphere_mesh,
 };
 pub use plugins::{SUPPORTED_PLUGINS, fov_to_x};
-pub use transforms::look_at;
+pub use transforms::{MAX_COORDINATE, look_at};
 
 use crate::error::Result;
 use crate::scene::desc::SceneDesc;

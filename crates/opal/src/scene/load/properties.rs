@@ -201,13 +201,21 @@ impl Props {
 pub(super) fn parse_floats(s: &str, loc: &Loc, what: &str) -> Result<Vec<f64>> {
     s.split(|c: char| c == ',' || c.is_whitespace())
         .filter(|t| !t.is_empty())
-        .map(|t| t.parse::<f64>().map_err(|_| loc.err(format!("{what}: `{t}` is not a number"))))
+        .map(|t| match t.parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            Ok(_) => Err(loc.err(format!("{what}: `{t}` is not a finite number"))),
+            Err(_) => Err(loc.err(format!("{what}: `{t}` is not a number"))),
+        })
         .collect()
 }
 
 pub(super) fn parse_float(a: &Attr) -> Result<f64> {
     let v = a.value.trim();
-    v.parse::<f64>().map_err(|_| a.loc.err(format!("`{v}` is not a number")))
+    match v.parse::<f64>() {
+        Ok(x) if x.is_finite() => Ok(x),
+        Ok(_) => Err(a.loc.err(format!("`{v}` is not a finite number"))),
+        Err(_) => Err(a.loc.err(format!("`{v}` is not a number"))),
+    }
 }
 
 /// `value="x, y, z"` or attributes `x`, `y`, `z` (missing ones = `default`).

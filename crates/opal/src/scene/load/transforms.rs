@@ -6,7 +6,8 @@
 //! part) and `lookat` (`origin`, `target`, `up`; see [`look_at`]) are applied in document
 //! order, each new one **left**-multiplied (`M ← T·M`); composition is in f64 and the result is
 //! rounded to f32 once. Normals are transformed by the inverse transpose; singular
-//! `to_world` matrices and meshes left with only degenerate triangles are errors.
+//! `to_world` matrices, vertices beyond ±[`MAX_COORDINATE`] in world space and meshes left with
+//! only degenerate triangles are errors.
 //!
 //! Tests: `crates/opal/tests/scene_load.rs` (composition order, every transform element and
 //! its error cases, degenerate meshes).
@@ -92,6 +93,10 @@ pub(super) fn to_mat4(m: DMat4) -> Mat4 {
 
 /// Applies `to_world`, drops degenerate triangles, sets up normals; returns the number of
 /// dropped triangles.
+/// Largest world-space coordinate a mesh vertex may have: the f32 intersection code squares
+/// edge lengths and coordinates (f32 overflows at 3.4e38), so 1e18 keeps every product finite.
+pub const MAX_COORDINATE: f64 = 1e18;
+
 pub(super) fn finalize_mesh(
     mut m: TriangleMesh,
     to_world: DMat4,
@@ -106,14 +111,28 @@ pub(super) fn finalize_mesh(
         return Err(loc.err(format!("{what}: to_world is singular (determinant {det})")));
     }
     let nmat = lin.inverse().transpose();
-    for p in &mut m.positions {
-        *p = to_world.transform_point3(p.as_dvec3()).as_vec3();
+    for (k, p) in m.positions.iter_mut().enumerate() {
+        let w = to_world.transform_point3(p.as_dvec3());
+        if !w.is_finite() || w.abs().max_element() > MAX_COORDINATE {
+            return Err(loc.err(format!(
+                "{what}: vertex {k} lands at ({:e}, {:e}, {:e}) in world space, beyond ±{MAX_COORDINATE:e} \
+                 (the f32 tracer squares coordinates; scale the scene down)",
+                w.x, w.y, w.z
+            )));
+        }
+        *p = w.as_vec3();
     }
     for (k, n) in m.normals.iter_mut().enumerate() {
-        let t = (nmat * n.as_dvec3()).as_vec3();
-        *n = t
-            .try_normalize()
-            .ok_or_else(|| loc.err(format!("{what}: vertex normal {k} is zero or not finite ({n})")))?;
+        let t64 = nmat * n.as_dvec3();
+        // In f32 first (the usual path); in f64 when the f32 length under- or overflows (huge
+        // or tiny scales, e.g. coordinates of 1e30).
+        *n = t64.as_vec3().try_normalize().or_else(|| t64.try_normalize().map(|u| u.as_vec3())).ok_or_else(
+            || {
+                loc.err(format!(
+                    "{what}: vertex normal {k} is zero or not finite after to_world ({n} → {t64})"
+                ))
+            },
+        )?;
     }
     let before = m.indices.len();
     let pos = &m.positions;

@@ -1,0 +1,179 @@
+//! Determinism of every command that draws random numbers, through the binary: the same seed
+//! gives the same output bytes on 1 and on 2 worker threads (`--threads`), for `gonio
+//! simulate`, `fit-ndf`, `brdf check` and `delight` (`render` has its own test,
+//! `render_cli::the_same_seed_writes_the_same_bytes_on_one_and_two_threads`).
+//!
+//! Compared: every file the command writes, byte for byte, and its `--json` text, except the
+//! fields that measure time (`seconds`, `cpu_seconds`, … listed in [`is_timing_key`]), which are
+//! removed from JSON before comparing.
+
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn opal() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_opal"))
+}
+
+/// JSON keys that hold wall or CPU times (they differ between runs by nature).
+fn is_timing_key(k: &str) -> bool {
+    k.contains("seconds")
+        || k.ends_with("_s")
+        || k.contains("timing")
+        || k.contains("elapsed")
+        || k.contains("per_second")
+}
+
+/// `v` without its timing fields (recursively).
+fn strip_timing(v: &mut Value) {
+    match v {
+        Value::Object(m) => {
+            m.retain(|k, _| !is_timing_key(k));
+            m.values_mut().for_each(strip_timing);
+        }
+        Value::Array(a) => a.iter_mut().for_each(strip_timing),
+        _ => {}
+    }
+}
+
+/// Every file under `dir` (relative path → bytes); `.json` files with their timing fields
+/// removed.
+fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+                continue;
+            }
+            let mut bytes = std::fs::read(&p).unwrap();
+            if p.extension().is_some_and(|x| x == "json") {
+                bytes = json_without_timing(&bytes);
+            }
+            out.insert(p.strip_prefix(dir).unwrap().to_path_buf(), bytes);
+        }
+    }
+    out
+}
+
+fn json_without_timing(bytes: &[u8]) -> Vec<u8> {
+    let mut v: Value = serde_json::from_slice(bytes).expect("valid JSON");
+    strip_timing(&mut v);
+    serde_json::to_vec_pretty(&v).unwrap()
+}
+
+/// Runs `make(threads, outdir)` for 1, 2 and 2 threads, each into a fresh folder; asserts that
+/// it exits with `code` and that the folders (and the printed JSON) are identical. Returns the
+/// file names compared.
+fn same_on_one_and_two_threads(code: i32, make: impl Fn(&str, &Path) -> Command) -> Vec<PathBuf> {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut runs = Vec::new();
+    for (k, threads) in ["1", "2", "2"].into_iter().enumerate() {
+        let dir = tmp.path().join(format!("run{k}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        let o = make(threads, &dir).output().unwrap();
+        assert_eq!(o.status.code(), Some(code), "{threads} threads: {}", String::from_utf8_lossy(&o.stderr));
+        let stdout = if o.stdout.is_empty() { Vec::new() } else { json_without_timing(&o.stdout) };
+        runs.push((snapshot(&dir), stdout));
+    }
+    let (files0, out0) = &runs[0];
+    assert!(!files0.is_empty());
+    for (k, (files, out)) in runs.iter().enumerate().skip(1) {
+        assert_eq!(files.keys().collect::<Vec<_>>(), files0.keys().collect::<Vec<_>>(), "run {k}: file set");
+        for (name, bytes) in files {
+            assert!(
+                bytes == &files0[name],
+                "run {k} (threads {}): {} differs",
+                ["1", "2", "2"][k],
+                name.display()
+            );
+        }
+        assert!(out == out0, "run {k}: --json output differs");
+    }
+    files0.keys().cloned().collect()
+}
+
+#[test]
+fn gonio_simulate_same_bytes_on_one_and_two_threads() {
+    let files = same_on_one_and_two_threads(0, |threads, dir| {
+        let mut c = opal();
+        c.args(["gonio", "simulate", "-o"])
+            .arg(dir.join("curves.csv"))
+            .args(["--photons", "20000", "--ndf", "beckmann:0.25", "--entry", "rough", "--seed", "11"])
+            .args(["--threads", threads, "--json", "--quiet", "--plot"])
+            .arg(dir.join("curves.svg"));
+        c
+    });
+    assert_eq!(files.len(), 2, "{files:?}");
+}
+
+#[test]
+fn fit_ndf_same_bytes_on_one_and_two_threads() {
+    let csv = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/fit_ndf_demo.csv");
+    // 4 iterations on few photons: the fit stops unconverged (exit 1), outputs written.
+    let files = same_on_one_and_two_threads(1, |threads, dir| {
+        let mut c = opal();
+        c.arg("fit-ndf")
+            .arg(&csv)
+            .args(["--entry", "rough", "--family", "ggx", "--photons", "3000", "--coarse-photons", "1000"])
+            .args([
+                "--max-iters",
+                "4",
+                "--seed",
+                "5",
+                "--no-render",
+                "--threads",
+                threads,
+                "--json",
+                "--quiet",
+            ])
+            .arg("-o")
+            .arg(dir.join("fit"));
+        c
+    });
+    assert!(files.iter().any(|f| f.ends_with("fit.json")), "{files:?}");
+}
+
+#[test]
+fn brdf_check_same_bytes_on_one_and_two_threads() {
+    let files = same_on_one_and_two_threads(0, |threads, dir| {
+        let mut c = opal();
+        c.args(["brdf", "check", "--model", "phong-norm", "--param", "n=1:100", "--points", "12"])
+            .args(["--incidence-points", "3", "--mc-samples", "20000", "--seed", "9", "--threads", threads])
+            .args(["--json", "--plot"])
+            .arg(dir.join("r.svg"));
+        c
+    });
+    assert_eq!(files.len(), 1);
+}
+
+#[test]
+fn delight_same_bytes_on_one_and_two_threads() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal-inverse/tests/data/lights_small");
+    let files = same_on_one_and_two_threads(0, |threads, dir| {
+        let mut c = opal();
+        c.arg("delight")
+            .arg("--scene")
+            .arg(data.join("scene.xml"))
+            .arg("--views")
+            .arg(data.join("transforms.json"))
+            .arg("-o")
+            .arg(dir.join("out"))
+            .args([
+                "--resolution",
+                "16",
+                "--light-paths",
+                "50000",
+                "--iterations",
+                "2",
+                "--rerender-spp",
+                "2",
+            ])
+            .args(["--seed", "4", "--threads", threads, "--json"]);
+        c
+    });
+    assert!(files.len() > 3, "{files:?}");
+}

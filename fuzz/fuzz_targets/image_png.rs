@@ -1,0 +1,9 @@
+//! The image reader as Opal calls it (`opal::image::read`) on a `.png` file.
+#![no_main]
+use libfuzzer_sys::fuzz_target;
+use opal_fuzz::write_input;
+
+fuzz_target!(|data: &[u8]| {
+    let path = write_input("img.png", data);
+    let _ = opal::image::read::read_image_decoded(&path);
+});
