@@ -455,7 +455,9 @@ fn relative_measurement_fits_with_factors() {
     // factor × maximum within 4σ of 1, σ² = the factor's standard error² + the maximum's own
     // (the file's value_stderr at the peak, 0.1–1 %: the normalisation divides by a noisy
     // point). Measured: |factor × maximum − 1| ≤ 2.1σ (30° R: 1.275 ± 0.132; the T curves
-    // 0.976–1.000 ± 0.021–0.024). The former flat +3 % is not needed.
+    // 0.976–1.000 ± 0.021–0.024). The former flat +3 % is not needed. `--min-snr 0`: the
+    // points of the default 1 % floor, as these bounds were measured with (with a 3 % error
+    // per point every point has SNR 33, so the default SNR rule would keep the tails too).
     let d = tempfile::tempdir().unwrap();
     let (csv, max) = normalised_demo();
     let p = d.path().join("relative.csv");
@@ -465,7 +467,7 @@ fn relative_measurement_fits_with_factors() {
         .arg("fit-ndf")
         .arg(&p)
         .args(["--entry", "rough", "--family", "ggx", "--photons", "20000", "--scale", "per-curve"])
-        .args(["--rel-error", "0.03", "--no-render", "--json", "--quiet", "-o"])
+        .args(["--rel-error", "0.03", "--min-snr", "0", "--no-render", "--json", "--quiet", "-o"])
         .arg(&out)
         .output()
         .unwrap();
@@ -532,7 +534,8 @@ fn points_above(floor: f64) -> [usize; 2] {
 
 /// `--floor F` leaves out every point below F × its curve's maximum: fit.json's `points` (and
 /// the per-incidence counts) equal the count made from the file, on both sides and on T only;
-/// the default is 1 %; a floor outside [0, 1) is refused with exit 2.
+/// the default is 1 %; a floor outside [0, 1) is refused with exit 2. `--min-snr 0`: the
+/// floor alone selects (by default a point at ≥ 3 standard errors is kept below the floor too).
 #[test]
 fn floor_selects_the_points() {
     let d = tempfile::tempdir().unwrap();
@@ -552,6 +555,8 @@ fn floor_selects_the_points() {
                 "--no-render",
                 "--json",
                 "--quiet",
+                "--min-snr",
+                "0",
             ])
             .args(extra)
             .arg("-o")
