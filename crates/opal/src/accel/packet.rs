@@ -33,7 +33,6 @@
 // The SIMD fast paths exist on x86-64 only; elsewhere the scalar paths run (same results).
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_imports, unused_variables))]
 
-use super::bvh::BOX_FAR_SCALE;
 use super::{BruteForce, Hit};
 use crate::geometry::Ray;
 use crate::math::Vec3;
@@ -316,20 +315,11 @@ impl PacketAccel {
         let inv = [_mm256_div_ps(one, dx), _mm256_div_ps(one, dy), _mm256_div_ps(one, dz)];
         let neg = inv.map(|i| _mm256_cmp_ps::<_CMP_LT_OQ>(i, zero));
         let o = [o0, o1, o2];
-        let scale = _mm256_set1_ps(BOX_FAR_SCALE);
         let active = _mm256_cmp_ps::<_CMP_GT_OQ>(best_t, zero);
         'groups: for g in &self.groups {
-            let (mut t0, mut t1) = (zero, best_t);
-            for a in 0..3 {
-                let (lo, hi) = (_mm256_set1_ps(g.lo[a]), _mm256_set1_ps(g.hi[a]));
-                let (near, far) = (_mm256_blendv_ps(lo, hi, neg[a]), _mm256_blendv_ps(hi, lo, neg[a]));
-                let tn = _mm256_mul_ps(_mm256_sub_ps(near, o[a]), inv[a]);
-                let tf = _mm256_mul_ps(_mm256_mul_ps(_mm256_sub_ps(far, o[a]), inv[a]), scale);
-                t0 = _mm256_max_ps(tn, t0);
-                t1 = _mm256_min_ps(tf, t1);
-            }
+            let enters = super::bvh::avx::slab8(g.lo, g.hi, &o, &inv, &neg, best_t);
             let lanes = if ANY { open } else { active };
-            if _mm256_movemask_ps(_mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1), lanes)) == 0 {
+            if _mm256_movemask_ps(_mm256_and_ps(enters, lanes)) == 0 {
                 continue;
             }
             for (slot, c) in sheared.iter_mut().zip(&g.verts) {

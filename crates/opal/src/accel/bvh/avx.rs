@@ -44,9 +44,38 @@ pub(super) fn box8(
     (t0, _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1)) as u32)
 }
 
+/// The slab test of one box `(lo, hi)` against eight rays (origins `o`, inverse directions
+/// `inv`, `neg` = the lanes where `inv < 0`) over `(0, t1)`: the operations of
+/// `BoxRay::hit8` per lane (near/far planes by the sign, `maxps`/`minps` for the NaN-ignoring
+/// `if`s, the far distance widened by `1 + 2γ₃`); returns the mask `t0 ≤ t1` (all bits set
+/// where the lane's segment meets the box). Shared by [`enters8_avx2`] and the packet kernel
+/// (`crate::accel::packet`).
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(in crate::accel) fn slab8(
+    lo: [f32; 3],
+    hi: [f32; 3],
+    o: &[__m256; 3],
+    inv: &[__m256; 3],
+    neg: &[__m256; 3],
+    t1: __m256,
+) -> __m256 {
+    let (mut t0, mut t1) = (_mm256_setzero_ps(), t1);
+    for a in 0..3 {
+        let (l, h) = (_mm256_set1_ps(lo[a]), _mm256_set1_ps(hi[a]));
+        let (near, far) = (_mm256_blendv_ps(l, h, neg[a]), _mm256_blendv_ps(h, l, neg[a]));
+        let tn = _mm256_mul_ps(_mm256_sub_ps(near, o[a]), inv[a]);
+        let tf =
+            _mm256_mul_ps(_mm256_mul_ps(_mm256_sub_ps(far, o[a]), inv[a]), _mm256_set1_ps(BOX_FAR_SCALE));
+        t0 = _mm256_max_ps(tn, t0);
+        t1 = _mm256_min_ps(tf, t1);
+    }
+    _mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1)
+}
+
 /// `Bvh::enters8_portable` for the eight lanes at once: the same operations per lane (the
-/// division, the near/far choice by `inv < 0`, `maxps`/`minps` for the NaN-ignoring `if`s), so
-/// the same mask, bit for bit (`super::tests::enters8_avx2_equals_portable`).
+/// division, then [`slab8`]), so the same mask, bit for bit
+/// (`super::tests::enters8_avx2_equals_portable`).
 #[target_feature(enable = "avx2")]
 pub(super) fn enters8_avx2(bounds: (crate::math::Vec3, crate::math::Vec3), rays: &RayPacket) -> u32 {
     let (lo, hi) = bounds;
@@ -54,20 +83,11 @@ pub(super) fn enters8_avx2(bounds: (crate::math::Vec3, crate::math::Vec3), rays:
     let ld = |a: &[f32; 8]| unsafe { _mm256_loadu_ps(a.as_ptr()) };
     let zero = _mm256_setzero_ps();
     let tmax = ld(&rays.tmax);
-    let (mut t0, mut t1) = (zero, tmax);
-    for a in 0..3 {
-        let inv = _mm256_div_ps(_mm256_set1_ps(1.0), ld(&rays.d[a]));
-        let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(inv, zero);
-        let (l, h) = (_mm256_set1_ps(lo[a]), _mm256_set1_ps(hi[a]));
-        let (near, far) = (_mm256_blendv_ps(l, h, neg), _mm256_blendv_ps(h, l, neg));
-        let o = ld(&rays.o[a]);
-        let tn = _mm256_mul_ps(_mm256_sub_ps(near, o), inv);
-        let tf = _mm256_mul_ps(_mm256_mul_ps(_mm256_sub_ps(far, o), inv), _mm256_set1_ps(BOX_FAR_SCALE));
-        t0 = _mm256_max_ps(tn, t0);
-        t1 = _mm256_min_ps(tf, t1);
-    }
-    let ok = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(tmax, zero), _mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1));
-    _mm256_movemask_ps(ok) as u32
+    let inv = [0, 1, 2].map(|a| _mm256_div_ps(_mm256_set1_ps(1.0), ld(&rays.d[a])));
+    let neg = inv.map(|i| _mm256_cmp_ps::<_CMP_LT_OQ>(i, zero));
+    let o = [0, 1, 2].map(|a| ld(&rays.o[a]));
+    let enters = slab8(lo.to_array(), hi.to_array(), &o, &inv, &neg, tmax);
+    _mm256_movemask_ps(_mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(tmax, zero), enters)) as u32
 }
 
 impl Bvh {

@@ -32,7 +32,7 @@
 //! `examples/accel_compare.rs`, `benches/accel.rs`, `bench/accel_vs_embree.sh`.
 
 #[cfg(target_arch = "x86_64")]
-mod avx;
+pub(super) mod avx;
 mod build;
 #[cfg(target_arch = "x86_64")]
 mod stream;
