@@ -41,7 +41,15 @@ enum Command {
 }
 
 fn main() {
-    let cli = Cli::parse();
+    // `opal delight --resume OUTDIR` runs the saved command line of that output folder
+    let argv = match cmd::delight::resume::expand(std::env::args_os().collect()) {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::exit(2);
+        }
+    };
+    let cli = Cli::parse_from(argv);
     util::set_quiet(cli.quiet);
     // `delight` keeps its finished iterations on Ctrl-C (its own handler); the others stop
     let result = match cli.command {

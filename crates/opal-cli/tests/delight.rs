@@ -661,9 +661,10 @@ fn refine_poses_writes_transforms_and_corrections() {
 }
 
 /// Ctrl-C during `opal delight`: the run stops after its current iteration with exit code 130,
-/// keeps the finished iterations in OUT/checkpoint and writes no result; the same command with
-/// `--resume` finishes it with the same output images, byte for byte, as an uninterrupted run,
-/// and removes the checkpoint.
+/// keeps the finished iterations in OUT/checkpoint and writes no result; `opal delight --resume
+/// OUT` continues it (interrupted again here), and the same command with `--resume` finishes it
+/// with the same output images, byte for byte, as an uninterrupted run, and removes the
+/// checkpoint.
 #[cfg(unix)]
 #[test]
 fn interrupted_delight_resumes_to_the_same_bytes() {
@@ -696,29 +697,44 @@ fn interrupted_delight_resumes_to_the_same_bytes() {
     let o = opal(&args(&whole).iter().map(String::as_str).collect::<Vec<_>>());
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 
-    let out = tmp.path().join("out");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_opal"))
-        .args(args(&out))
-        .stderr(Stdio::piped())
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut log = String::new();
-    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
-        let line = line.unwrap();
-        if line.starts_with("iteration 1:") {
-            let k = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
-            assert!(k.success());
+    // runs `args` and sends SIGINT once the log shows a finished iteration; returns the log
+    let interrupt = |args: &[String]| -> String {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_opal"))
+            .args(args)
+            .stderr(Stdio::piped())
+            .stdout(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut log = String::new();
+        for line in BufReader::new(child.stderr.take().unwrap()).lines() {
+            let line = line.unwrap();
+            if line.starts_with("iteration ")
+                && line.contains("max rel. error")
+                && !log.contains("max rel. error")
+            {
+                let k = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+                assert!(k.success());
+            }
+            log.push_str(&line);
+            log.push('\n');
         }
-        log.push_str(&line);
-        log.push('\n');
-    }
-    let st = child.wait().unwrap();
-    assert_eq!(st.code(), Some(130), "{log}");
+        let st = child.wait().unwrap();
+        assert_eq!(st.code(), Some(130), "{log}");
+        log
+    };
+    let out = tmp.path().join("out");
+    let log = interrupt(&args(&out));
     assert!(log.contains("kept in") && log.contains("--resume"), "{log}");
     assert!(out.join("checkpoint/state.json").exists());
+    assert!(out.join("checkpoint/args.json").exists());
     assert!(!out.join("report.json").exists(), "no result after an interruption");
 
+    // the short form, `--resume OUTDIR` alone, interrupted again after its first iteration
+    let log = interrupt(&["delight".to_string(), "--resume".into(), out.display().to_string()]);
+    assert!(log.contains("resuming after iteration"), "{log}");
+    assert!(!out.join("report.json").exists(), "no result after an interruption");
+
+    // the long form: the run's own arguments plus --resume
     let mut a = args(&out);
     a.push("--resume".into());
     let o = opal(&a.iter().map(String::as_str).collect::<Vec<_>>());
@@ -741,4 +757,15 @@ fn interrupted_delight_resumes_to_the_same_bytes() {
     for (x, y) in a.iter().zip(&b) {
         assert!(x.1 == y.1, "{} differs after the resume", x.0.display());
     }
+}
+
+/// `opal delight --resume DIR` where DIR holds no checkpoint: a clear error, exit code 2.
+#[test]
+fn resume_without_a_checkpoint_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().display().to_string();
+    let o = opal(&["delight", "--resume", &dir]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("cannot resume from") && err.contains("args.json"), "{err}");
 }

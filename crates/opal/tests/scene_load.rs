@@ -978,3 +978,63 @@ fn exr_with_an_absurd_data_window_is_refused_before_allocating() {
         assert!(e.contains("exr_huge_data_window.exr") && e.contains("above the limit"), "{e}");
     }
 }
+
+/// CRC-32 (IEEE) of PNG chunks, bit by bit (a test helper for hand-made headers).
+fn png_crc(bytes: &[u8]) -> u32 {
+    let mut c = 0xffff_ffffu32;
+    for &b in bytes {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = if c & 1 != 0 { 0xedb8_8320 ^ (c >> 1) } else { c >> 1 };
+        }
+    }
+    !c
+}
+
+/// A PNG whose header declares 65 536² RGB pixels (48 GiB as f32): refused with the file's name
+/// and the size before anything is decoded, not an out-of-memory kill; a 2×2 PNG made the same
+/// way still reads (the header check does not refuse small images).
+#[test]
+fn png_of_65536_squared_pixels_is_refused_before_allocating() {
+    let png = |w: u32, h: u32, idat: &[u8]| -> Vec<u8> {
+        let mut v = b"\x89PNG\r\n\x1a\n".to_vec();
+        let mut chunk = |kind: &[u8], data: &[u8]| {
+            v.extend_from_slice(&(data.len() as u32).to_be_bytes());
+            let mut body = kind.to_vec();
+            body.extend_from_slice(data);
+            v.extend_from_slice(&body);
+            v.extend_from_slice(&png_crc(&body).to_be_bytes());
+        };
+        let mut ihdr = Vec::new();
+        ihdr.extend_from_slice(&w.to_be_bytes());
+        ihdr.extend_from_slice(&h.to_be_bytes());
+        ihdr.extend_from_slice(&[8, 2, 0, 0, 0]); // 8-bit RGB, deflate, no filter method, no interlace
+        chunk(b"IHDR", &ihdr);
+        chunk(b"IDAT", idat);
+        chunk(b"IEND", &[]);
+        v
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let huge = dir.path().join("huge.png");
+    std::fs::write(&huge, png(65536, 65536, &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01])).unwrap();
+    let e = read_image(&huge).unwrap_err().to_string();
+    assert!(e.contains("huge.png") && e.contains("65536×65536") && e.contains("above the limit"), "{e}");
+
+    // 2×2 RGB, each row a filter byte 0 and two black pixels, stored (uncompressed) deflate
+    let raw = [0u8; 2 * (1 + 2 * 3)];
+    let mut z = vec![0x78, 0x01, 0x01, raw.len() as u8, 0, !(raw.len() as u8), 0xff];
+    z.extend_from_slice(&raw);
+    let adler = {
+        let (mut a, mut b) = (1u32, 0u32);
+        for &x in &raw {
+            a = (a + x as u32) % 65521;
+            b = (b + a) % 65521;
+        }
+        (b << 16) | a
+    };
+    z.extend_from_slice(&adler.to_be_bytes());
+    let small = dir.path().join("small.png");
+    std::fs::write(&small, png(2, 2, &z)).unwrap();
+    let img = read_image(&small).unwrap();
+    assert_eq!((img.width, img.height), (2, 2));
+}

@@ -162,6 +162,11 @@ pub(in crate::delight) fn save(
     Ok(())
 }
 
+/// Whether `dir` holds a checkpoint (a `state.json` written by [`save`]).
+pub(in crate::delight) fn exists(dir: &Path) -> bool {
+    dir.join("state.json").is_file()
+}
+
 /// Reads a checkpoint written by [`save`] for `objects` (the recomputed state before the
 /// iterations, whose fingerprint must match).
 pub(in crate::delight) fn load(dir: &Path, fingerprint: u64, objects: &[ObjectResult]) -> Result<Saved> {

@@ -75,7 +75,26 @@ pub fn read_image_decoded(path: &Path) -> Result<DecodedImage> {
 
 fn read_with_image_crate(path: &Path) -> Result<Image> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let dynimg = image::load_from_memory(&bytes).map_err(|e| decode_err(path, e))?;
+    let reader = || {
+        image::ImageReader::new(std::io::Cursor::new(&bytes[..]))
+            .with_guessed_format()
+            .map_err(|e| Error::io(path, e))
+    };
+    // The header first: the pixels are held as f32 RGB, so the same bound as an EXR's
+    // (2^30 samples = 4 GiB) applies, checked before anything is decoded (e.g. a 65 536² PNG
+    // would take 48 GiB). Within it the decoder's own allocation limit is lifted: image's
+    // default (512 MiB) would refuse 8-bit photos above ~170 MP with a less clear message.
+    let (w, h) = reader()?.into_dimensions().map_err(|e| decode_err(path, e))?;
+    let samples = w as u64 * h as u64 * 3;
+    if samples > MAX_EXR_SAMPLES {
+        return Err(decode_err(
+            path,
+            format!("{w}×{h} pixels are {samples} RGB samples, above the limit of {MAX_EXR_SAMPLES}"),
+        ));
+    }
+    let mut r = reader()?;
+    r.no_limits();
+    let dynimg = r.decode().map_err(|e| decode_err(path, e))?;
     let rgb = dynimg.to_rgb32f();
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
     let data = rgb.pixels().map(|p| Spectrum::rgb(p.0[0], p.0[1], p.0[2])).collect();
@@ -83,7 +102,8 @@ fn read_with_image_crate(path: &Path) -> Result<Image> {
 }
 
 /// Most samples (pixels × channels, per layer) an EXR may declare: 2^30 f32 = 4 GiB (e.g.
-/// 16 384² RGBA); larger headers are refused before anything is allocated.
+/// 16 384² RGBA); larger headers are refused before anything is allocated. PNG and HDR files
+/// are held the same way and get the same bound (pixels × 3).
 pub const MAX_EXR_SAMPLES: u64 = 1 << 30;
 
 /// Reads every channel of the first (or only) layers of an EXR file: `(width, height,

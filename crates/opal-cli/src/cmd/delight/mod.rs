@@ -5,6 +5,7 @@
 
 mod contact;
 mod html;
+pub mod resume;
 
 use crate::util;
 use anyhow::{Context, Result, bail};
@@ -100,8 +101,10 @@ pub struct DelightArgs {
     #[arg(long, default_value = "off")]
     pub refine_poses: String,
     /// Continue an interrupted run from OUTPUT/checkpoint (written after every finished
-    /// iteration): give the same arguments as that run. The result is the same, bit for bit, as
-    /// an uninterrupted run's; a checkpoint made from other inputs or settings is refused.
+    /// iteration): either the same arguments as that run plus `--resume`, or `opal delight
+    /// --resume OUTPUT` alone (the run's arguments and working directory are read from
+    /// OUTPUT/checkpoint/args.json). The result is the same, bit for bit, as an uninterrupted
+    /// run's; a checkpoint made from other inputs or settings is refused.
     #[arg(long)]
     pub resume: bool,
     /// Seed.
@@ -714,9 +717,13 @@ pub fn run(a: DelightArgs) -> Result<i32> {
     util::set_threads(a.threads);
     let log = |l: &str| eprintln!("{l}");
     util::install_interrupt_handler();
+    resume::save_args(&a.output.join(CHECKPOINT))?;
     let report = run_pipeline(&a, &log).map_err(|e| match e.downcast_ref::<opal::error::Error>() {
         Some(opal::error::Error::Interrupted { .. }) => {
-            e.context("stopped on request; to continue, run the same command with --resume")
+            e.context(format!(
+                "stopped on request; to continue, run the same command with --resume, or `opal delight --resume {}`",
+                a.output.display()
+            ))
         }
         _ => e,
     })?;

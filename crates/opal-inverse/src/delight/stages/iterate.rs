@@ -91,9 +91,17 @@ pub(in crate::delight) fn iterate(
     let fp = checkpoint::fingerprint(objects, s.seed, paths);
     let first_warning = warnings.len();
     let mut start = 1;
-    if s.resume {
-        let dir =
-            s.checkpoint.as_deref().ok_or_else(|| Error::invalid("resume", "no checkpoint folder given"))?;
+    let resume_from = match (s.resume, s.checkpoint.as_deref()) {
+        (false, _) => None,
+        (true, None) => return Err(Error::invalid("resume", "no checkpoint folder given")),
+        // stopped before its first iteration finished: nothing to restore, start at iteration 1
+        (true, Some(dir)) if !checkpoint::exists(dir) => {
+            log(&format!("no finished iteration in {}: starting from iteration 1", dir.display()));
+            None
+        }
+        (true, Some(dir)) => Some(dir),
+    };
+    if let Some(dir) = resume_from {
         let saved = checkpoint::load(dir, fp, objects)?;
         for (o, m) in objects.iter_mut().zip(saved.maps) {
             m.restore(o);
