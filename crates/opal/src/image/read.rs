@@ -82,8 +82,9 @@ fn read_with_image_crate(path: &Path) -> Result<Image> {
     };
     // The header first: the pixels are held as f32 RGB, so the same bound as an EXR's
     // (2^30 samples = 4 GiB) applies, checked before anything is decoded (e.g. a 65 536² PNG
-    // would take 48 GiB). Within it the decoder's own allocation limit is lifted: image's
-    // default (512 MiB) would refuse 8-bit photos above ~170 MP with a less clear message.
+    // would take 48 GiB). The decoder allocates its own buffer from the header before reading
+    // the data, so it keeps a limit too: 1 GiB (8-bit RGB up to 16 384², against image's
+    // default of 512 MiB), below the 2 GB the fuzz target allows per allocation.
     let (w, h) = reader()?.into_dimensions().map_err(|e| decode_err(path, e))?;
     let samples = w as u64 * h as u64 * 3;
     if samples > MAX_EXR_SAMPLES {
@@ -93,7 +94,9 @@ fn read_with_image_crate(path: &Path) -> Result<Image> {
         ));
     }
     let mut r = reader()?;
-    r.no_limits();
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(1 << 30);
+    r.limits(limits);
     let dynimg = r.decode().map_err(|e| decode_err(path, e))?;
     let rgb = dynimg.to_rgb32f();
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
