@@ -455,6 +455,34 @@ fn split_accel_matches_brute_force_in_a_room_with_an_object() {
         "{hits} hits, {object_hits} on the object (the rays must probe both parts)"
     );
     assert_eq!(packets, 1_000);
+    // several packets at once (the BVH's rays gathered across them): the same bits per lane,
+    // with inactive lanes mixed in
+    let packets: Vec<RayPacket> = rays
+        .chunks(7)
+        .map(|chunk| {
+            let mut p = RayPacket::default();
+            for (l, r) in chunk.iter().enumerate() {
+                p.set(l, r);
+            }
+            p
+        })
+        .collect();
+    for group in packets.chunks(5) {
+        let mut many = vec![opal::accel::packet::PacketHits::NONE; group.len()];
+        let mut blocked = vec![0u32; group.len()];
+        accel.intersect8_many(group, &mut many);
+        accel.occluded8_many(group, &mut blocked);
+        for (j, p) in group.iter().enumerate() {
+            let one = accel.intersect8(p);
+            let key = |h: &opal::accel::packet::PacketHits, l: usize| {
+                h.hit(l).map(|x| (x.prim, x.t.to_bits(), x.b1.to_bits(), x.b2.to_bits()))
+            };
+            for l in 0..8 {
+                assert_eq!(key(&many[j], l), key(&one, l), "packet {j} lane {l}");
+            }
+            assert_eq!(blocked[j], accel.occluded8(p), "packet {j}");
+        }
+    }
 }
 
 /// Without large triangles (a sphere alone, a random soup) nothing is set apart: a plain BVH.

@@ -115,6 +115,35 @@ impl Accel {
         }
     }
 
+    /// [`Accel::intersect8`] of several packets (`hits[j]` for `rays[j]`), the same hits; the
+    /// split structure gathers the rays that enter its BVH from all packets into full streams
+    /// ([`SplitAccel::intersect8_many`]).
+    #[inline]
+    pub fn intersect8_many(&self, rays: &[RayPacket], hits: &mut [PacketHits]) {
+        match self {
+            Accel::Split(s) => s.intersect8_many(rays, hits),
+            _ => {
+                for (r, h) in rays.iter().zip(hits.iter_mut()) {
+                    *h = self.intersect8(r);
+                }
+            }
+        }
+    }
+
+    /// [`Accel::occluded8`] of several packets (`blocked[j]` for `rays[j]`), the same masks
+    /// ([`SplitAccel::occluded8_many`]).
+    #[inline]
+    pub fn occluded8_many(&self, rays: &[RayPacket], blocked: &mut [u32]) {
+        match self {
+            Accel::Split(s) => s.occluded8_many(rays, blocked),
+            _ => {
+                for (r, b) in rays.iter().zip(blocked.iter_mut()) {
+                    *b = self.occluded8(r);
+                }
+            }
+        }
+    }
+
     /// Which of the eight rays of a packet are blocked before `tmax` (bit `l` = lane `l`;
     /// lanes with `tmax ≤ 0` are inactive, bit clear): [`Accel::occluded`] per lane. The BVH
     /// stops each lane's traversal at its first hit, the tiny structure its triangle loop once

@@ -196,6 +196,63 @@ impl SplitAccel {
         hits
     }
 
+    /// [`SplitAccel::intersect8`] of several packets at once, the same hits packet by packet:
+    /// the big triangles per packet, then the rays of all packets that enter the BVH's bounds,
+    /// gathered into full streams of eight. On an object in a room only about one ray in six
+    /// enters, so packet by packet the BVH's interleaved traversal ([`Bvh::intersect8`]) would
+    /// mostly run with one or two lanes and hide little of its memory latency.
+    pub fn intersect8_many(&self, rays: &[RayPacket], hits: &mut [PacketHits]) {
+        assert_eq!(rays.len(), hits.len(), "one hit record per packet");
+        let mut queue = Gather::default();
+        for j in 0..rays.len() {
+            hits[j] = self.packet.intersect_lanes(&rays[j]);
+            let mut below = rays[j];
+            for l in 0..PACKET {
+                if hits[j].prim[l] >= 0 {
+                    hits[j].prim[l] = self.big_ids[hits[j].prim[l] as usize] as i32;
+                    below.tmax[l] = hits[j].t[l];
+                }
+            }
+            let enter = self.bvh.enters8(&below);
+            for l in 0..PACKET {
+                if enter >> l & 1 != 0 {
+                    queue.push(&below, j, l);
+                    if queue.n == PACKET {
+                        queue.flush_closest(&self.bvh, hits);
+                    }
+                }
+            }
+        }
+        queue.flush_closest(&self.bvh, hits);
+    }
+
+    /// [`SplitAccel::occluded8`] of several packets at once (bit `l` of `blocked[j]` = lane `l`
+    /// of packet `j`), the BVH's rays gathered into full streams as in
+    /// [`SplitAccel::intersect8_many`].
+    pub fn occluded8_many(&self, rays: &[RayPacket], blocked: &mut [u32]) {
+        assert_eq!(rays.len(), blocked.len(), "one mask per packet");
+        let mut queue = Gather::default();
+        for j in 0..rays.len() {
+            blocked[j] = self.packet.occluded_lanes(&rays[j]);
+            let mut rest = rays[j];
+            for l in 0..PACKET {
+                if blocked[j] >> l & 1 != 0 {
+                    rest.tmax[l] = 0.0;
+                }
+            }
+            let enter = self.bvh.enters8(&rest);
+            for l in 0..PACKET {
+                if enter >> l & 1 != 0 {
+                    queue.push(&rest, j, l);
+                    if queue.n == PACKET {
+                        queue.flush_occluded(&self.bvh, blocked);
+                    }
+                }
+            }
+        }
+        queue.flush_occluded(&self.bvh, blocked);
+    }
+
     /// Which lanes are blocked before `tmax` (bit `l` = lane `l`; inactive lanes clear): the
     /// big triangles first, the BVH for the lanes still open whose segment meets its bounds.
     pub fn occluded8(&self, rays: &RayPacket) -> u32 {
@@ -216,5 +273,65 @@ impl SplitAccel {
             }
         }
         blocked | self.bvh.occluded8(&rest)
+    }
+}
+
+/// Rays of several packets queued for one BVH stream: lane `k` of `rays` is lane `lane[k]` of
+/// packet `packet[k]`.
+#[derive(Default)]
+struct Gather {
+    rays: RayPacket,
+    packet: [usize; PACKET],
+    lane: [usize; PACKET],
+    n: usize,
+}
+
+impl Gather {
+    #[inline]
+    fn push(&mut self, from: &RayPacket, j: usize, l: usize) {
+        let k = self.n;
+        for a in 0..3 {
+            self.rays.o[a][k] = from.o[a][l];
+            self.rays.d[a][k] = from.d[a][l];
+        }
+        self.rays.tmax[k] = from.tmax[l];
+        self.packet[k] = j;
+        self.lane[k] = l;
+        self.n += 1;
+    }
+
+    /// Makes the unused lanes inactive; whether any ray is queued.
+    #[inline]
+    fn prepare(&mut self) -> bool {
+        for k in self.n..PACKET {
+            self.rays.tmax[k] = 0.0;
+        }
+        self.n > 0
+    }
+
+    /// Traces the queued rays to their closest hits, stores those found and empties the queue.
+    fn flush_closest(&mut self, bvh: &Bvh, hits: &mut [PacketHits]) {
+        if !self.prepare() {
+            return;
+        }
+        let small = bvh.intersect8(&self.rays);
+        for k in 0..self.n {
+            if let Some(h) = small.hit(k) {
+                hits[self.packet[k]].set(self.lane[k], Some(h));
+            }
+        }
+        self.n = 0;
+    }
+
+    /// Tests the queued rays for any hit, sets their bits and empties the queue.
+    fn flush_occluded(&mut self, bvh: &Bvh, blocked: &mut [u32]) {
+        if !self.prepare() {
+            return;
+        }
+        let b = bvh.occluded8(&self.rays);
+        for k in 0..self.n {
+            blocked[self.packet[k]] |= (b >> k & 1) << self.lane[k];
+        }
+        self.n = 0;
     }
 }
