@@ -205,6 +205,10 @@ impl SplitAccel {
         assert_eq!(rays.len(), hits.len(), "one hit record per packet");
         let mut queue = Gather::default();
         for j in 0..rays.len() {
+            if !rays[j].tmax.iter().any(|&t| t > 0.0) {
+                hits[j] = PacketHits::NONE;
+                continue;
+            }
             hits[j] = self.packet.intersect_lanes(&rays[j]);
             let mut below = rays[j];
             for l in 0..PACKET {
@@ -233,6 +237,10 @@ impl SplitAccel {
         assert_eq!(rays.len(), blocked.len(), "one mask per packet");
         let mut queue = Gather::default();
         for j in 0..rays.len() {
+            if !rays[j].tmax.iter().any(|&t| t > 0.0) {
+                blocked[j] = 0;
+                continue;
+            }
             blocked[j] = self.packet.occluded_lanes(&rays[j]);
             let mut rest = rays[j];
             for l in 0..PACKET {

@@ -4,6 +4,11 @@
 //! reconstruction and the wide vertex ([`super::wide::vertex_lanes`]) directly, without packing a
 //! lane's structures into lanes and back at every step.
 //!
+//! A row runs [`SETS`] such sets of eight lanes in step: all sets' rays are traced in one call
+//! ([`crate::accel::Accel::intersect8_many`], the shadow rays in one
+//! [`crate::accel::Accel::occluded8_many`]), so that a split structure fills its BVH streams
+//! with the rays of all sets that enter it; then each set is shaded in turn.
+//!
 //! Per step: the lanes' rays are traced together ([`crate::accel::Accel::intersect8`]); each hit
 //! triangle's **row** (a 128-byte record built once per render: geometric normal, corner uvs,
 //! corner normals, shape, light, flags, constant albedo — [`Tables`]) is copied into the lanes,
@@ -28,7 +33,7 @@
 use super::wavefront::fill_inactive;
 use super::wide::{self, Kernel, V3, VertexIn, W};
 use super::{PathSettings, PathState, PixelSums, Row, emission};
-use crate::accel::packet::RayPacket;
+use crate::accel::packet::{PacketHits, RayPacket};
 use crate::geometry::Ray;
 use crate::light::Light;
 use crate::math::{Vec2, Vec3};
@@ -36,6 +41,11 @@ use crate::sampling::Rng;
 use crate::scene::{Material, Scene, SurfaceInteraction};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
+
+/// Sets of [`W`] lanes (pixels) advanced in step: their rays are traced in one call
+/// ([`crate::accel::Accel::intersect8_many`], shadow rays likewise), so that a split structure
+/// fills its BVH streams with the rays of all sets that enter it.
+const SETS: usize = 4;
 
 /// Floats per triangle row (128 bytes).
 const ROW: usize = 32;
@@ -232,7 +242,7 @@ fn render_row_lanes(
             started: 0,
         })
     };
-    let mut lanes = Lanes {
+    let mut sets: [Lanes; SETS] = std::array::from_fn(|_| Lanes {
         px: std::array::from_fn(|_| None),
         o: V3::default(),
         d: V3::default(),
@@ -243,49 +253,84 @@ fn render_row_lanes(
         has_prev: [false; W],
         prev_p: V3::default(),
         prev_pdf: [0.0; W],
-    };
-    for k in 0..W {
-        lanes.px[k] = take_pixel();
-        if lanes.px[k].is_some() {
-            lanes.start_sample(k, scene, cam, y);
+    });
+    for lanes in sets.iter_mut() {
+        for k in 0..W {
+            lanes.px[k] = take_pixel();
+            if lanes.px[k].is_some() {
+                lanes.start_sample(k, scene, cam, y);
+            }
         }
     }
     let mut inp = VertexIn::default();
     // the hit lanes' rows (other lanes keep earlier, finite values)
     let mut g: Gathered = [[0.0; W]; FIELDS];
+    let mut packets = [RayPacket::default(); SETS];
+    let mut hits = [PacketHits::NONE; SETS];
+    let mut outs: [Option<wide::VertexOut>; SETS] = std::array::from_fn(|_| None);
     loop {
-        let alive: [bool; W] = std::array::from_fn(|k| lanes.px[k].is_some());
-        if !alive.contains(&true) {
+        let alive: [[bool; W]; SETS] =
+            std::array::from_fn(|j| std::array::from_fn(|k| sets[j].px[k].is_some()));
+        if !alive.iter().flatten().any(|&a| a) {
             break;
         }
-        let mut packet = RayPacket {
-            o: [lanes.o.x, lanes.o.y, lanes.o.z],
-            d: [lanes.d.x, lanes.d.y, lanes.d.z],
-            tmax: lanes.tmax,
-        };
-        fill_inactive(&mut packet, alive);
-        let hits = accel.intersect8(&packet);
-        let mut ended = [false; W];
-        let shaded = step(scene, tables, s, &mut lanes, &alive, &hits, &mut ended, &mut inp, &mut g, kernel);
-        if let Some(out) = shaded {
-            trace_shadows(scene, &mut lanes, &out);
+        for (j, lanes) in sets.iter().enumerate() {
+            packets[j] = RayPacket {
+                o: [lanes.o.x, lanes.o.y, lanes.o.z],
+                d: [lanes.d.x, lanes.d.y, lanes.d.z],
+                tmax: lanes.tmax,
+            };
+            inactive(&mut packets[j], alive[j]);
         }
-        for k in 0..W {
-            if !ended[k] {
-                continue;
+        accel.intersect8_many(&packets, &mut hits);
+        let mut ended = [[false; W]; SETS];
+        for j in 0..SETS {
+            outs[j] = None;
+            if alive[j].contains(&true) {
+                outs[j] = step(
+                    scene,
+                    tables,
+                    s,
+                    &mut sets[j],
+                    &alive[j],
+                    &hits[j],
+                    &mut ended[j],
+                    &mut inp,
+                    &mut g,
+                    kernel,
+                );
             }
-            let px = lanes.px[k].as_mut().expect("an ended lane has a pixel");
-            px.sums.add(Spectrum(lanes.l.get(k)));
-            if px.started < s.spp {
-                lanes.start_sample(k, scene, cam, y);
-            } else {
-                row.put(px.x, &px.sums);
-                lanes.px[k] = take_pixel();
-                if lanes.px[k].is_some() {
+        }
+        trace_shadows(scene, &mut sets, &outs);
+        for (lanes, ended) in sets.iter_mut().zip(&ended) {
+            for k in 0..W {
+                if !ended[k] {
+                    continue;
+                }
+                let px = lanes.px[k].as_mut().expect("an ended lane has a pixel");
+                px.sums.add(Spectrum(lanes.l.get(k)));
+                if px.started < s.spp {
                     lanes.start_sample(k, scene, cam, y);
+                } else {
+                    row.put(px.x, &px.sums);
+                    lanes.px[k] = take_pixel();
+                    if lanes.px[k].is_some() {
+                        lanes.start_sample(k, scene, cam, y);
+                    }
                 }
             }
         }
+    }
+}
+
+/// Lanes of `packet` not in `active` get a ray of lane 0's or their own with `tmax = 0`
+/// ([`fill_inactive`]; a packet without an active lane gets `tmax = 0` everywhere).
+#[inline(always)]
+fn inactive(packet: &mut RayPacket, active: [bool; W]) {
+    if active.contains(&true) {
+        fill_inactive(packet, active);
+    } else {
+        packet.tmax = [0.0; W];
     }
 }
 
@@ -303,7 +348,7 @@ fn step(
     s: &PathSettings,
     lanes: &mut Lanes,
     alive: &[bool; W],
-    hits: &crate::accel::packet::PacketHits,
+    hits: &PacketHits,
     ended: &mut [bool; W],
     inp: &mut VertexIn,
     g: &mut Gathered,
@@ -429,13 +474,7 @@ fn step(
 /// Copies the hit lanes' rows into `g` (field by field; other lanes keep their values, or get
 /// row 0's with AVX2).
 #[inline(always)]
-fn gather(
-    tables: &Tables,
-    hits: &crate::accel::packet::PacketHits,
-    hit: &[bool; W],
-    g: &mut Gathered,
-    kernel: Kernel,
-) {
+fn gather(tables: &Tables, hits: &PacketHits, hit: &[bool; W], g: &mut Gathered, kernel: Kernel) {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 {
         let prim: [usize; W] = std::array::from_fn(|k| if hit[k] { hits.prim[k] as usize } else { 0 });
@@ -485,7 +524,7 @@ struct Interaction {
 /// point `o + d·t`, `b0 = 1 − b1 − b2`, corner-normal interpolation normalised by its length,
 /// corner-uv interpolation).
 #[inline(always)]
-fn interaction(g: &Gathered, lanes: &Lanes, hits: &crate::accel::packet::PacketHits) -> Interaction {
+fn interaction(g: &Gathered, lanes: &Lanes, hits: &PacketHits) -> Interaction {
     let mut si = Interaction { p: V3::default(), ng: V3::default(), ns: V3::default(), uv: [[0.0; W]; 2] };
     for k in 0..W {
         let (t, b1, b2) = (hits.t[k], hits.b1[k], hits.b2[k]);
@@ -518,7 +557,7 @@ fn emission_lane(
     lanes: &mut Lanes,
     k: usize,
     si: &Interaction,
-    hits: &crate::accel::packet::PacketHits,
+    hits: &PacketHits,
     shape: u32,
 ) {
     let mut st = PathState {
@@ -543,22 +582,36 @@ fn emission_lane(
     lanes.l.set(k, st.l.0);
 }
 
-/// Traces the pending shadow rays of `out` together and adds the contributions of those that
-/// reach their light.
+/// Traces the pending shadow rays of every set's `out` together
+/// ([`crate::accel::Accel::occluded8_many`]) and adds the contributions of those that reach
+/// their light.
 #[inline(always)]
-fn trace_shadows(scene: &Scene, lanes: &mut Lanes, out: &wide::VertexOut) {
-    let shadowed: [bool; W] = std::array::from_fn(|k| out.shadow[k] != 0);
-    if !shadowed.contains(&true) {
+fn trace_shadows(scene: &Scene, sets: &mut [Lanes; SETS], outs: &[Option<wide::VertexOut>; SETS]) {
+    let shadowed: [[bool; W]; SETS] =
+        std::array::from_fn(|j| std::array::from_fn(|k| outs[j].as_ref().is_some_and(|o| o.shadow[k] != 0)));
+    if !shadowed.iter().flatten().any(|&b| b) {
         return;
     }
-    let mut rays =
-        RayPacket { o: [out.so.x, out.so.y, out.so.z], d: [out.sd.x, out.sd.y, out.sd.z], tmax: out.stmax };
-    fill_inactive(&mut rays, shadowed);
-    let blocked = scene.accel().occluded8(&rays);
-    for k in 0..W {
-        if shadowed[k] && blocked >> k & 1 == 0 {
-            let l = Spectrum(lanes.l.get(k)) + Spectrum(out.contrib.get(k));
-            lanes.l.set(k, l.0);
+    let mut rays = [RayPacket::default(); SETS];
+    for j in 0..SETS {
+        if let Some(out) = &outs[j] {
+            rays[j] = RayPacket {
+                o: [out.so.x, out.so.y, out.so.z],
+                d: [out.sd.x, out.sd.y, out.sd.z],
+                tmax: out.stmax,
+            };
+        }
+        inactive(&mut rays[j], shadowed[j]);
+    }
+    let mut blocked = [0u32; SETS];
+    scene.accel().occluded8_many(&rays, &mut blocked);
+    for j in 0..SETS {
+        let Some(out) = &outs[j] else { continue };
+        for k in 0..W {
+            if shadowed[j][k] && blocked[j] >> k & 1 == 0 {
+                let l = Spectrum(sets[j].l.get(k)) + Spectrum(out.contrib.get(k));
+                sets[j].l.set(k, l.0);
+            }
         }
     }
 }
