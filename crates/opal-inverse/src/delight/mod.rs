@@ -58,6 +58,7 @@ pub mod contact;
 mod direct;
 pub mod footprint;
 pub mod gains;
+pub mod gather;
 pub mod inpaint;
 pub mod noise;
 mod observe;
