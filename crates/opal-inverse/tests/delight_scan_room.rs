@@ -33,6 +33,7 @@ use std::path::PathBuf;
 
 #[allow(dead_code)] // the gain helpers are for the room tests
 mod common;
+mod scan_diag;
 
 fn dir() -> PathBuf {
     PathBuf::from(
@@ -138,12 +139,19 @@ fn mitsuba_scan_room_acceptance() {
             opal::image::read::read_image(&p).unwrap()
         })
         .collect();
-    let s = DelightSettings { iterations: 5, tolerance: 0.0, ..Default::default() };
+    let mut s = DelightSettings { iterations: 5, tolerance: 0.0, ..Default::default() };
+    // error analysis (scan_diag): maps and per-iteration object means into this folder
+    let diag_dir = std::env::var_os("OPAL_SCAN_ROOM_OUT").map(PathBuf::from);
+    if let Some(o) = &diag_dir {
+        std::fs::create_dir_all(o).unwrap();
+        s.debug.dump_dir = Some(o.clone());
+        s.debug.print = true;
+    }
     let t0 = std::time::Instant::now();
     let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
     let secs = t0.elapsed().as_secs_f64();
-    for (name, w) in &r.timings {
-        println!("stage {name}: {w:.1} s");
+    for ((name, w), (_, c)) in r.timings.iter().zip(&r.cpu_timings) {
+        println!("stage {name}: {w:.1} s wall, {c:.1} CPU-s");
     }
     println!("delight() {secs:.1} s wall, {} iterations, {} light paths", r.iterations.len(), r.light_paths);
 
@@ -177,6 +185,9 @@ fn mitsuba_scan_room_acceptance() {
                     o.resolution.texel_density,
                 );
                 psnr_min = psnr_min.min(p);
+                if let Some(out) = &diag_dir {
+                    scan_diag::diagnose(o, (&truth_desc, &truth), (&rec_desc, &rec), &views, out);
+                }
             }
         }
     }

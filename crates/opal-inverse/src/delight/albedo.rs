@@ -100,13 +100,17 @@ pub(super) fn fill_unseen(objects: &mut [ObjectResult]) {
     }
 }
 
-/// Initial albedo: the indirect irradiance starts at `share` × the direct one (× the scene-average
-/// direct irradiance `avg` where a texel has none), then [`update_kd`].
-pub(super) fn initial_kd(o: &mut ObjectResult, share: f32, avg: [f32; 3]) {
+/// Initial albedo: the indirect irradiance starts at the `gathered` map when given
+/// ([`super::gather`]), else at `share` × the direct one (× the scene-average direct irradiance
+/// `avg` where a texel has none), then [`update_kd`].
+pub(super) fn initial_kd(o: &mut ObjectResult, share: f32, avg: [f32; 3], gathered: Option<&[[f32; 3]]>) {
     for i in 0..o.ed.len() {
         for c in 0..3 {
             let e = o.ed[i][c];
-            o.ei[i][c] = share * if e > 0.0 { e } else { avg[c] };
+            o.ei[i][c] = match gathered {
+                Some(g) => g[i][c],
+                None => share * if e > 0.0 { e } else { avg[c] },
+            };
         }
     }
     o.clamped = update_kd(o);

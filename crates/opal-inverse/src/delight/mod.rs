@@ -20,8 +20,10 @@
 //!    inpainted ([`inpaint`]) for previews;
 //! 4. direct irradiance `Ed` per texel by light sampling (power-proportional light choice,
 //!    stratified positions, shadow rays);
-//! 5. `Kd = π L / (Ed + Ei)` per channel with `Ei = share · Ed` (or `share` × the scene-average
-//!    irradiance where a texel has no direct light); where `Kd > 1`, `Ei` is raised to
+//! 5. `Kd = π L / (Ed + Ei)` per channel with `Ei` gathered from the luminance maps ([`gather`]:
+//!    π × the mean observed radiance seen along cosine-distributed rays; with
+//!    `gather_rays = 0`: `Ei = share · Ed`, or `share` × the scene-average irradiance where a
+//!    texel has no direct light); where `Kd > 1`, `Ei` is raised to
 //!    `π L − Ed` (so `Kd = 1`); `Kd` is computed on observed texels and inpainted elsewhere;
 //! 6. iterations: a light-tracing pass ([`opal::integrator::light_tracer`], importance transport;
 //!    paths from the texel count and a target per-texel noise, [`noise`], whose achieved value
@@ -58,6 +60,7 @@ pub mod contact;
 mod direct;
 pub mod footprint;
 pub mod gains;
+pub mod gather;
 pub mod inpaint;
 pub mod noise;
 mod observe;

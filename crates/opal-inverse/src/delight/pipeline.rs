@@ -1,6 +1,7 @@
 //! The de-lighting pipeline [`delight`]: checks its inputs, then runs the named stages of
 //! [`super::stages`] in order — unwrap (selection, atlases), direct (irradiance `Ed`),
-//! pose refinement (optional), luminance (per-view gains, luminance maps `L`, then the initial albedo), iterate
+//! pose refinement (optional), luminance (per-view gains, luminance maps `L`), gather (the initial
+//! indirect irradiance from the luminance maps, [`super::gather`]) and the initial albedo, iterate
 //! (light-tracing passes, super-resolved luminance after the first) and outputs (debug dump,
 //! result). The steps are described in the module documentation of [`super`] and in
 //! `docs/delight.md`. Tests: `tests/delight.rs` (round trip on a small Cornell box), the CLI's
@@ -11,7 +12,7 @@ use super::stages::outputs::{Finished, assemble, debug_dump};
 use super::stages::{Inputs, direct, iterate, luminance, unwrap};
 use super::timing::{StageClock, Timings};
 use super::views::{PureBuffer, View};
-use super::{DelightResult, DelightSettings, pose, views};
+use super::{DelightResult, DelightSettings, gather, pose, views};
 use opal::error::{Error, Result};
 use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
@@ -67,8 +68,16 @@ pub fn delight(
     luminance::luminance_maps(&inp, &mut objects, views, &pure, &mut warnings);
     timings.push("luminance", t0.elapsed());
     cancelled(s)?;
-    for o in &mut objects {
-        initial_kd(o, s.indirect_share, avg);
+    // initial indirect irradiance: gathered from the luminance maps (or a share of `Ed`)
+    let t0 = StageClock::start();
+    let gathered =
+        (s.gather_rays > 0).then(|| gather::gather_indirect(&scene, &objects, s.gather_rays, s.seed));
+    for (j, o) in objects.iter_mut().enumerate() {
+        initial_kd(o, s.indirect_share, avg, gathered.as_ref().map(|g| g[j].as_slice()));
+    }
+    drop(gathered);
+    if s.gather_rays > 0 {
+        timings.push("gather", t0.elapsed());
     }
     // unseen objects: scene-average albedo of the seen ones
     fill_unseen(&mut objects);

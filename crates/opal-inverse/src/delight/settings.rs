@@ -67,8 +67,11 @@ pub struct DelightSettings {
     /// Pilot light samples per texel of the adaptive direct irradiance (0 = every texel gets
     /// `direct_samples`); see [`direct_irradiance`](super::direct_irradiance).
     pub direct_pilot: u32,
-    /// Initial indirect share of the direct irradiance.
+    /// Initial indirect share of the direct irradiance (used when `gather_rays` is 0).
     pub indirect_share: f32,
+    /// Rays per gather texel of the initial indirect irradiance gathered from the luminance
+    /// maps ([`super::gather`]); 0 = start from `indirect_share` × `Ed` instead.
+    pub gather_rays: u32,
     /// Update rule of the indirect irradiance.
     pub update: UpdateRule,
     /// Smoothing radius (texels) of the rendered indirect irradiance; `None` = resolution/64.
@@ -123,6 +126,7 @@ impl Default for DelightSettings {
             direct_samples: 64,
             direct_pilot: 16,
             indirect_share: 0.5,
+            gather_rays: 64,
             update: UpdateRule::FixedPoint,
             smooth: None,
             superres: Some(superres::SrSettings::default()),
