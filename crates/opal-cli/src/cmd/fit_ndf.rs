@@ -365,6 +365,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
             &format!("{} α={:.4}", best.model.family.name(), best.alpha_initial),
         ),
         (&ndf, &best.model.describe()),
+        best.model.coverage,
         a.no_render,
     )?;
 
@@ -523,14 +524,16 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
             let label = format!("{}°", (c.incidence.to_degrees() * 100.0).round() / 100.0);
             let meas: Vec<(f64, f64)> = ks.iter().map(|&(k, x)| (x, c.value[k])).collect();
             let idx = p.detector_indices(ci);
-            // the fitted curve only where the simulation resolves it (relative standard error
-            // ≤ RESOLVED): elsewhere a few photons make a noisy floor that looks like a misfit;
-            // the gaps are left open
+            // the fitted curve as a line only where the simulation resolves it (relative
+            // standard error ≤ RESOLVED): elsewhere a few photons make a noisy floor that looks
+            // like a misfit, so those values are marked with crosses instead (none at all where
+            // the simulation recorded nothing)
             let resolved = |k: usize| {
                 let (v, se) = (r.value[idx[k]], r.value_stderr[idx[k]]);
                 v > 0.0 && se <= RESOLVED * v
             };
             let mut segments: Vec<Vec<(f64, f64)>> = Vec::new();
+            let mut unresolved: Vec<(f64, f64)> = Vec::new();
             let mut prev_resolved = false;
             for &(k, x) in &ks {
                 let ok = resolved(k);
@@ -539,6 +542,8 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
                         Some(sg) if prev_resolved => sg.push((x, r.value[idx[k]])),
                         _ => segments.push(vec![(x, r.value[idx[k]])]),
                     }
+                } else if r.value[idx[k]] > 0.0 {
+                    unresolved.push((x, r.value[idx[k]]));
                 }
                 prev_resolved = ok;
             }
@@ -554,16 +559,37 @@ fn write_plots(out: &Path, p: &Problem, ev: &Evaluation, title: &str) -> Result<
                 .filter(|&&(k, _)| used(k))
                 .map(|&(k, x)| (x, (r.value[idx[k]] - c.value[k]) / c.value[k]))
                 .collect();
-            series.push(Series { name: format!("{label} measured"), points: meas, color, dashed: false });
+            series.push(Series {
+                name: format!("{label} measured"),
+                points: meas,
+                color,
+                dashed: false,
+                marks: false,
+            });
             for (i, sg) in segments.into_iter().enumerate() {
                 let name = if i == 0 { format!("{label} fitted") } else { String::new() };
-                series.push(Series { name, points: sg, color, dashed: true });
+                series.push(Series { name, points: sg, color, dashed: true, marks: false });
             }
-            res_series.push(Series { name: label, points: rel, color, dashed: false });
+            if !unresolved.is_empty() {
+                // one legend entry per panel for the crosses (their colour says the incidence)
+                let first = !series.iter().any(|s| s.marks);
+                series.push(Series {
+                    name: if first {
+                        format!("fitted, σ > {:.0} %", 100.0 * RESOLVED)
+                    } else {
+                        String::new()
+                    },
+                    points: unresolved,
+                    color,
+                    dashed: false,
+                    marks: true,
+                });
+            }
+            res_series.push(Series { name: label, points: rel, color, dashed: false, marks: false });
         }
         panels.push(LinePlot {
             title: format!(
-                "side {}: solid measured, dashed fitted (gaps: σ > {:.0} %)",
+                "side {}: solid measured, dashed fitted (× where σ > {:.0} %)",
                 side.label(),
                 100.0 * RESOLVED
             ),
@@ -631,8 +657,14 @@ pub fn run(a: FitNdfArgs) -> Result<i32> {
     Ok(0)
 }
 
-/// `opal demo` part: fit a small bundled measurement (GGX α = 0.15, rough entry, three
-/// incidences of the Mitsuba reference, thinned to every 2nd detector) with few photons.
+/// Photons per incidence of the demo fit (the lobe ~100× below the spike needs them to be
+/// resolved; timing in docs/performance.md).
+const DEMO_PHOTONS: u64 = 100_000;
+
+/// `opal demo` part: fit a small bundled measurement of a dotted plate (35 % GGX α = 0.3 dots
+/// on a polished land, n 1.52, 3 mm, rough entry, three incidences of a Mitsuba 3 simulation,
+/// every 2nd detector) with `auto` and the default point selection: the single NDFs miss the
+/// spike + lobe, the dotted model is kept (spike and lobe fitted together).
 pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
     let dir = out_dir.join("fit_ndf");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -645,9 +677,11 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
         scattering: "single".into(),
         fit_on: "both".into(),
         scale: "absolute".into(),
-        photons: Some(30_000),
+        photons: Some(DEMO_PHOTONS),
         max_iters: 40,
         entry: Some("rough".into()),
+        ior: Some(1.52),
+        thickness_mm: Some(3.0),
         floor: 0.01,
         min_snr: DEFAULT_MIN_SNR,
         ..Default::default()
