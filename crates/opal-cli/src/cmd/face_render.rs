@@ -1,6 +1,7 @@
 //! `opal fit-ndf` outputs that make the fitted face a material: `face.obsdf` (the tabulated
 //! BSDF of both sides, loadable with `<bsdf type="tabulated">`) and `chessboard.png` (the
-//! plate over a chessboard under diffuse light, initial guess vs fitted face side by side —
+//! plate over a chessboard under diffuse light, initial guess (for a dotted fit: the best single
+//! NDF) vs fitted face side by side —
 //! the paper's Fig. 10). Library: [`opal_inverse::face_table`]; kept separate from the fitting
 //! code so the two evolve independently.
 
@@ -20,7 +21,8 @@ pub const RENDER_SIZE: (usize, usize) = (480, 360);
 pub const RENDER_SPP: u32 = 32;
 
 /// Writes `face.obsdf` for `fitted` (with the fit's scattering model) and, unless
-/// `skip_render`, `chessboard.png` comparing the `initial` and `fitted` faces; returns a JSON
+/// `skip_render`, `chessboard.png` comparing the `initial` face (its label as given, e.g.
+/// "initial: ggx α=0.1") and the `fitted` one; returns a JSON
 /// summary (file size, dropped power of a multiple-scattering table, seconds). With
 /// `coverage` = Some(f) the fitted face is dotted: `face.obsdf` is the dots' face (a table
 /// cannot hold the polished land's delta lobes) and the render uses the dotted face itself
@@ -54,9 +56,7 @@ pub fn write_face_outputs(
     let (init_table, _) = face_table_for(initial.0, ior, grid, scattering, initial.1)
         .map_err(|e| anyhow!("face table: {e}"))?;
     let mut images = Vec::new();
-    for (t, label) in
-        [(&init_table, format!("initial: {}", initial.1)), (&table, format!("fitted: {}", fitted.1))]
-    {
+    for (t, label) in [(&init_table, initial.1.to_string()), (&table, format!("fitted: {}", fitted.1))] {
         let face = match coverage {
             Some(f) if std::ptr::eq(t, &table) => Bxdfs::Dotted(
                 Dotted::new(
