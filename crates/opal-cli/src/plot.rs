@@ -1,6 +1,6 @@
 //! Line plots (PNG or SVG, chosen by the file extension) with plotters and a bundled DejaVu Sans
 //! font (no system font library needed). Log or linear y axis, one colour per series, solid or
-//! dashed lines, several panels side by side. Files are written atomically.
+//! dashed lines or crosses, several panels side by side. Files are written atomically.
 
 use anyhow::{Context, Result, anyhow, bail};
 use plotters::coord::Shift;
@@ -30,6 +30,8 @@ pub struct Series {
     pub color: usize,
     /// Dashed instead of solid.
     pub dashed: bool,
+    /// Each point a small cross, no line (e.g. values shown but not trusted).
+    pub marks: bool,
 }
 
 /// One panel: axes with curves.
@@ -167,14 +169,22 @@ where
             .collect();
         let color = palette(s.color);
         let style = color.stroke_width(2);
-        let anno = if s.dashed {
+        let anno = if s.marks {
+            chart
+                .draw_series(pts.into_iter().map(|p| Cross::new(p, 3, color.stroke_width(1))))
+                .map_err(|e| anyhow!("plot: {e}"))?
+        } else if s.dashed {
             chart.draw_series(DashedLineSeries::new(pts, 6, 4, style)).map_err(|e| anyhow!("plot: {e}"))?
         } else {
             chart.draw_series(LineSeries::new(pts, style)).map_err(|e| anyhow!("plot: {e}"))?
         };
         if !s.name.is_empty() {
-            anno.label(s.name.clone())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2)));
+            let anno = anno.label(s.name.clone());
+            if s.marks {
+                anno.legend(move |(x, y)| Cross::new((x + 8, y), 3, color.stroke_width(1)));
+            } else {
+                anno.legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2)));
+            }
         }
     }
     if p.series.iter().any(|s| !s.name.is_empty()) {
@@ -301,12 +311,14 @@ mod tests {
                     points: (1..50).map(|i| (i as f64, (i as f64).powi(2))).collect(),
                     color: 0,
                     dashed: false,
+                    marks: false,
                 },
                 Series {
                     name: "b".into(),
                     points: (1..50).map(|i| (i as f64, i as f64)).collect(),
                     color: 1,
                     dashed: true,
+                    marks: false,
                 },
             ],
             hline: Some(1.0),

@@ -7,7 +7,8 @@
 //! * [`chessboard_scene`]: a plate (rough top face from the table, polished bottom and edges:
 //!   [`opal::bsdf::SmoothDielectric`]) held a little above an 8 × 8 chessboard, under a large
 //!   overhead area light with emitting side walls (diffuse light), seen obliquely by one camera.
-//! * [`render_chessboard`]: renders that scene for a face table.
+//! * [`render_chessboard`]: renders that scene for a face table; [`render_chessboard_face`] for
+//!   any top-face model (a dotted face: the table's dots on a polished land).
 //!
 //! Scene units: the board is 8 × 8 units (squares of 1), the plate 5 × 5 × 0.25 units, its
 //! bottom 0.5 above the board, so a transmission lobe of width Δθ blurs the squares under the
@@ -210,7 +211,18 @@ pub fn render_chessboard(
     size: (usize, usize),
     spp: u32,
 ) -> opal::Result<RenderOutput> {
-    let desc = chessboard_scene(Bxdfs::Tabulated(face.clone()), ior, size.0, size.1)?;
+    render_chessboard_face(Bxdfs::Tabulated(face.clone()), ior, size, spp)
+}
+
+/// Renders the chessboard scene with any top-face model (e.g. an [`opal::bsdf::Dotted`] face
+/// of a table's dots on a polished land, which a table alone cannot represent).
+pub fn render_chessboard_face(
+    face: Bxdfs,
+    ior: f64,
+    size: (usize, usize),
+    spp: u32,
+) -> opal::Result<RenderOutput> {
+    let desc = chessboard_scene(face, ior, size.0, size.1)?;
     let scene = Scene::build(&desc)?;
     let s = PathSettings { spp, max_depth: 12, rr_depth: 4, hide_emitters: false, seed: 7 };
     Ok(render(&scene, 0, &s, &|| {}))

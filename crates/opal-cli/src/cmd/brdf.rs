@@ -206,6 +206,7 @@ pub fn plot_reports(path: &Path, reports: &[CheckReport]) -> Result<()> {
             points: r.curve.iter().map(|p| (p.param, p.max_reflectance)).collect(),
             color: i,
             dashed: false,
+            marks: false,
         });
         if r.incidence_deg.1 > r.incidence_deg.0 {
             series.push(Series {
@@ -213,6 +214,7 @@ pub fn plot_reports(path: &Path, reports: &[CheckReport]) -> Result<()> {
                 points: r.curve.iter().map(|p| (p.param, p.reflectance_first_incidence)).collect(),
                 color: i,
                 dashed: true,
+                marks: false,
             });
         }
     }

@@ -137,6 +137,7 @@ pub fn write_plot(path: &Path, gonio: &Gonio, res: &GonioResult, title: &str) ->
                 points: pts,
                 color: i,
                 dashed: false,
+                marks: false,
             });
         }
         panels.push(LinePlot {

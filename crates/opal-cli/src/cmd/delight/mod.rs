@@ -525,12 +525,14 @@ fn write_outputs(
                 points: series(&|i| i.max_rel_error),
                 color: 3,
                 dashed: false,
+                marks: false,
             },
             crate::plot::Series {
                 name: "mean".into(),
                 points: series(&|i| i.mean_rel_error),
                 color: 0,
                 dashed: false,
+                marks: false,
             },
         ],
         // a non-positive reference line on the log axis made plotters allocate without bound
