@@ -21,7 +21,7 @@
 //! * Isotropic roughness `alpha` (the RMS slope is `alpha/√2` for Beckmann).
 //!
 //! Models (one per file): [`beckmann`] (Gaussian slopes), [`ggx`] (GGX / Trowbridge–Reitz,
-//! Cauchy-like slopes), [`numeric`] (Student-t family between them, tabulated D(θm), peak
+//! Cauchy-like slopes), [`anisotropic`] (either, stretched to `α_u ≠ α_v`), [`numeric`] (Student-t family between them, tabulated D(θm), peak
 //! shift δ, hybrid analytic + tabulated; Λ from the projected-area integral).
 //!
 //! References: B. Walter et al., "Microfacet Models for Refraction through Rough Surfaces",
@@ -33,10 +33,12 @@
 //! Tests (below, for every NDF): normalisation by quadrature, weak white furnace, χ² of
 //! `sample_visible` against `pdf_visible` from both sides, height-correlated `G` ≥ separable `G`.
 
+pub mod anisotropic;
 pub mod beckmann;
 pub mod ggx;
 pub mod numeric;
 
+pub use anisotropic::{AnisoBase, Anisotropic};
 pub use beckmann::Beckmann;
 pub use ggx::Ggx;
 pub use numeric::{NumericNdf, Profile};
@@ -107,6 +109,8 @@ pub enum Ndfs {
     Ggx(Ggx),
     /// Tabulated isotropic NDF (Student-t, table, shifted, hybrid), shared between clones.
     Numeric(std::sync::Arc<NumericNdf>),
+    /// Anisotropic GGX or Beckmann (stretched; Mitsuba's `alpha_u` ≠ `alpha_v`).
+    Anisotropic(Anisotropic),
 }
 
 impl Ndfs {
@@ -128,6 +132,7 @@ impl Ndfs {
     pub fn g1_mitsuba(&self, w: Vec3, wm: Vec3) -> f32 {
         match self {
             Ndfs::Beckmann(b) => b.g1_mitsuba(w, wm),
+            Ndfs::Anisotropic(a) => a.g1_mitsuba(w, wm),
             n => n.g1(w, wm),
         }
     }
@@ -144,6 +149,7 @@ macro_rules! ndf_dispatch {
             Ndfs::Beckmann($n) => $e,
             Ndfs::Ggx($n) => $e,
             Ndfs::Numeric($n) => $e,
+            Ndfs::Anisotropic($n) => $e,
         }
     };
 }
