@@ -18,7 +18,8 @@
 //! * Visible-normal sampling: `sample_visible(w, u)` draws `wm` with density
 //!   `D_w(wm) = G1(w, wm) |w·wm| D(wm) / |cos θ|` (per solid angle of `wm`), which
 //!   `pdf_visible(w, wm)` returns. For `w.z < 0` the mirrored direction is used.
-//! * Isotropic roughness `alpha` (the RMS slope is `alpha/√2` for Beckmann).
+//! * Isotropic roughness `alpha` (the RMS slope is `alpha/√2` for Beckmann); [`Anisotropic`]
+//!   takes `alpha_u` along x and `alpha_v` along y.
 //!
 //! Models (one per file): [`beckmann`] (Gaussian slopes), [`ggx`] (GGX / Trowbridge–Reitz,
 //! Cauchy-like slopes), [`anisotropic`] (either, stretched to `α_u ≠ α_v`), [`numeric`] (Student-t family between them, tabulated D(θm), peak
@@ -50,7 +51,8 @@ use crate::math::{Vec2, Vec3};
 pub trait Ndf {
     /// Distribution of normals D(wm) (per unit solid angle of `wm`; zero for `wm.z ≤ 0`).
     fn d(&self, wm: Vec3) -> f32;
-    /// Smith auxiliary function Λ(w); depends on |cos θ| only (isotropic NDFs).
+    /// Smith auxiliary function Λ(w); depends on |cos θ| only for the isotropic NDFs (on the
+    /// azimuth too for [`Anisotropic`]).
     fn lambda(&self, w: Vec3) -> f32;
     /// Smith masking G1(w, wm) = χ⁺((w·wm)(w·n)) / (1 + Λ(w)).
     #[inline]
