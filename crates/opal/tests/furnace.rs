@@ -178,6 +178,52 @@ fn furnace_with_glass_sphere() {
     assert!(bad * 100 <= out.image.data.len(), "{bad} pixels off");
 }
 
+/// Lossless objects of Mitsuba's metal and sheet plugins in the closed furnace change nothing:
+/// a perfect mirror sphere (`conductor`, `material="none"`: F = 1) and a thin glass sheet cube
+/// (`thindielectric`, η = 1.5: reflection R' and straight transmission 1 − R') seen through
+/// and reflected in it. Every pixel sees Le/(1−ρ).
+#[test]
+fn furnace_with_mirror_and_thin_sheet() {
+    use opal::bsdf::conductor::ConductorFresnel;
+    use opal::bsdf::{Bxdfs, SmoothConductor, ThinDielectric};
+    let mut cube = inward_cube();
+    for t in &mut cube.indices {
+        t.swap(1, 2);
+    }
+    for p in &mut cube.positions {
+        *p = *p * 0.2 + Vec3::new(0.3, 0.1, -0.5);
+    }
+    let mirror =
+        BsdfDesc::Lobe(Bxdfs::SmoothConductor(SmoothConductor::new(ConductorFresnel::Mirror, Spectrum::ONE)));
+    let sheet = BsdfDesc::Lobe(Bxdfs::ThinDielectric(
+        ThinDielectric::new(1.5, Spectrum::ONE, Spectrum::ONE).unwrap(),
+    ));
+    let mut desc = furnace_scene(0.5, 1.0);
+    desc.shapes.push(ShapeDesc {
+        id: "mirror".into(),
+        mesh: glass_test_sphere(),
+        bsdf: mirror,
+        emitter: None,
+        origin: None,
+    });
+    desc.shapes.push(ShapeDesc { id: "sheet".into(), mesh: cube, bsdf: sheet, emitter: None, origin: None });
+    look_at_sphere(&mut desc);
+    let scene = Scene::build(&desc).unwrap();
+    let s = PathSettings { spp: 128, max_depth: -1, rr_depth: 3, hide_emitters: false, seed: 23 };
+    let out = render(&scene, 0, &s, &|| {});
+    assert_eq!(out.nonfinite, 0);
+    let expected = 1.0 / (1.0 - 0.5);
+    let (m, se) = mean_and_se(&out, 0);
+    eprintln!("mirror + sheet furnace: {m:.5} ± {se:.5} (expected {expected})");
+    assert!((m - expected).abs() <= 4.0 * se, "{m} ± {se}, expected {expected}");
+    let bad = (0..out.image.data.len())
+        .filter(|&k| {
+            (out.image.data[k][0] as f64 - expected).abs() > 4.0 * out.stderr.data[k][0] as f64 + 1e-3
+        })
+        .count();
+    assert!(bad * 100 <= out.image.data.len(), "{bad} pixels off");
+}
+
 /// Faceted sphere (radius 0.5, centre (0, 0, 0.3), outward normals, shading normal =
 /// geometric normal) placed in the furnace by the glass tests.
 fn glass_test_sphere() -> opal::geometry::TriangleMesh {

@@ -5,13 +5,14 @@
 //!   within 3σ (σ combining both renders' per-pixel standard errors) for ≥ 99 % of blocks and
 //!   channels. With 768 (block, channel) pairs and no bias, 0.27 % are expected beyond 3σ.
 
-use opal::image::read::read_image;
 use opal::integrator::path::{PathSettings, RenderOutput, render};
 use opal::math::{Vec2, Vec3};
 use opal::scene::desc::{BsdfDesc, TextureDesc};
 use opal::scene::{Scene, load_mitsuba_xml};
 use opal::spectrum::Spectrum;
 use std::path::PathBuf;
+
+mod common;
 
 fn data(p: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(p)
@@ -43,43 +44,9 @@ fn camera_rays_hit_mitsuba_aov_positions() {
     assert!(max_dist < 2e-4, "max hit-point distance {max_dist}");
 }
 
-/// Fraction of (16×16 block, channel) pairs whose |z| ≤ 3, and the worst |z|.
+/// Fraction of (16×16 block, channel) pairs whose |z| ≤ 3, and the worst |z| (and mean z).
 fn block_z(out: &RenderOutput, reference: &str, ref_stderr: &str) -> (f64, f64, f64) {
-    let r = read_image(&data(reference)).unwrap();
-    let rs = read_image(&data(ref_stderr)).unwrap();
-    assert_eq!((r.width, r.height), (out.image.width, out.image.height));
-    let b = 16;
-    let (mut ok, mut total, mut worst, mut sum_z) = (0, 0, 0.0f64, 0.0f64);
-    for by in 0..r.height / b {
-        for bx in 0..r.width / b {
-            for c in 0..3 {
-                let (mut mo, mut mr, mut var) = (0.0f64, 0.0f64, 0.0f64);
-                for y in by * b..(by + 1) * b {
-                    for x in bx * b..(bx + 1) * b {
-                        mo += out.image.get(x, y)[c] as f64;
-                        mr += r.get(x, y)[c] as f64;
-                        var += (out.stderr.get(x, y)[c] as f64).powi(2) + (rs.get(x, y)[c] as f64).powi(2);
-                    }
-                }
-                if var == 0.0 {
-                    // a block that is black in both (background) carries no information
-                    assert!(
-                        mo == 0.0 && mr == 0.0,
-                        "block ({bx},{by}) c{c}: {mo} vs {mr} with zero variance"
-                    );
-                    continue;
-                }
-                let z = (mo - mr) / var.sqrt();
-                total += 1;
-                sum_z += z;
-                worst = worst.max(z.abs());
-                if z.abs() <= 3.0 {
-                    ok += 1;
-                }
-            }
-        }
-    }
-    (ok as f64 / total as f64, worst, sum_z / total as f64)
+    common::block_z(out, &data(reference), &data(ref_stderr))
 }
 
 fn render_view(scene: &Scene, view: usize, spp: u32) -> RenderOutput {

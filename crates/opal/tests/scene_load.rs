@@ -542,18 +542,18 @@ fn error_malformed_xml_has_line() {
 
 #[test]
 fn error_unknown_plugin_types() {
-    let (e, s) = err_body("\n<shape type=\"cube\">\n  <bsdf type=\"roughplastic\"/>\n</shape>");
+    let (e, s) = err_body("\n<shape type=\"cube\">\n  <bsdf type=\"principled\"/>\n</shape>");
     assert!(matches!(e, Error::Parse { line: 4, .. }), "{e:?}");
-    assert!(s.contains("scene.xml:4:") && s.contains("bsdf type=\"roughplastic\" is not supported"), "{s}");
+    assert!(s.contains("scene.xml:4:") && s.contains("bsdf type=\"principled\" is not supported"), "{s}");
     assert!(s.contains("diffuse, twosided"), "{s}");
     let (_, s) = err_body("<emitter type=\"envmap\"><string name=\"filename\" value=\"x.exr\"/></emitter>");
     assert!(s.contains("scene.xml:2:") && s.contains("emitter type=\"envmap\""), "{s}");
     // The unsupported plugin is reported before its (here broken) children are read.
     let (_, s) = err_body(
-        "<bsdf type=\"roughplastic\" id=\"rp\"><texture type=\"bitmap\" name=\"diffuse_reflectance\">\
+        "<bsdf type=\"principled\" id=\"rp\"><texture type=\"bitmap\" name=\"base_color\">\
          <string name=\"filename\" value=\"missing.png\"/></texture></bsdf>",
     );
-    assert!(s.contains("roughplastic") && !s.contains("missing.png"), "{s}");
+    assert!(s.contains("principled") && !s.contains("missing.png"), "{s}");
     let (_, s) = err_body("<medium type=\"homogeneous\"/>");
     assert!(s.contains("scene.xml:2:") && s.contains("medium"), "{s}");
     let (_, s) = err_body("<shape type=\"cube\"><foo/></shape>");
@@ -1037,4 +1037,139 @@ fn png_of_65536_squared_pixels_is_refused_before_allocating() {
     std::fs::write(&small, png(2, 2, &z)).unwrap();
     let img = read_image(&small).unwrap();
     assert_eq!((img.width, img.height), (2, 2));
+}
+
+// ---------------------------------------------------------------------------------------
+// Mitsuba's metals, plastics, thin sheets; disk and cylinder
+
+fn bsdf_of(body: &str) -> opal::scene::desc::BsdfDesc {
+    ok(&format!("<shape type=\"rectangle\">{body}</shape>")).shapes[0].bsdf.clone()
+}
+
+#[test]
+fn metal_and_coating_plugins_with_mitsuba_defaults() {
+    use opal::bsdf::Bxdfs;
+    use opal::bsdf::conductor::ConductorFresnel;
+    use opal::bsdf::microfacet::Ndfs;
+    use opal::scene::desc::BsdfDesc::{Coated, Lobe};
+    // conductor: material "none" = mirror by default; a named metal; explicit eta/k
+    let Lobe(Bxdfs::SmoothConductor(c)) = bsdf_of(r#"<bsdf type="conductor"/>"#) else { panic!() };
+    assert_eq!(c.fresnel, ConductorFresnel::Mirror);
+    let Lobe(Bxdfs::SmoothConductor(c)) =
+        bsdf_of(r#"<bsdf type="conductor"><string name="material" value="Au"/></bsdf>"#)
+    else {
+        panic!()
+    };
+    let (eta, k) = opal::bsdf::ior::conductor_ior("Au").unwrap();
+    assert_eq!(c.fresnel, ConductorFresnel::Complex { eta: Spectrum(eta), k: Spectrum(k) });
+    let Lobe(Bxdfs::SmoothConductor(c)) = bsdf_of(
+        r#"<bsdf type="conductor"><rgb name="eta" value="0.2, 0.9, 1.1"/><float name="k" value="3"/>
+           <float name="specular_reflectance" value="0.8"/></bsdf>"#,
+    ) else {
+        panic!()
+    };
+    assert_eq!(
+        c.fresnel,
+        ConductorFresnel::Complex { eta: Spectrum::rgb(0.2, 0.9, 1.1), k: Spectrum::splat(3.0) }
+    );
+    assert_eq!(c.reflectance, Spectrum::splat(0.8));
+    // roughconductor: beckmann, alpha 0.1 by default; anisotropic with alpha_u/alpha_v
+    let Lobe(Bxdfs::RoughConductor(r)) = bsdf_of(r#"<bsdf type="roughconductor"/>"#) else { panic!() };
+    assert!(matches!(r.ndf, Ndfs::Beckmann(b) if b.alpha == 0.1) && r.fresnel == ConductorFresnel::Mirror);
+    let Lobe(Bxdfs::RoughConductor(r)) = bsdf_of(
+        r#"<bsdf type="roughconductor"><string name="distribution" value="ggx"/>
+           <float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf>"#,
+    ) else {
+        panic!()
+    };
+    assert!(matches!(r.ndf, Ndfs::Anisotropic(a) if a.alpha_u == 0.1 && a.alpha_v == 0.3));
+    // plastic: polypropylene in air, diffuse 0.5, linear
+    let Lobe(Bxdfs::Plastic(p)) = bsdf_of(r#"<bsdf type="plastic"/>"#) else { panic!() };
+    assert!((p.eta - 1.49 / 1.000277).abs() < 1e-6 && p.kd == Spectrum::splat(0.5) && !p.nonlinear);
+    assert!((p.spec_weight - 1.0 / 1.5).abs() < 1e-6);
+    let Lobe(Bxdfs::Plastic(p)) = bsdf_of(
+        r#"<bsdf type="plastic"><string name="int_ior" value="diamond"/><float name="ext_ior" value="1.33"/></bsdf>"#,
+    ) else {
+        panic!()
+    };
+    assert!((p.eta - 2.419 / 1.33).abs() < 1e-6);
+    let Lobe(Bxdfs::RoughPlastic(p)) = bsdf_of(r#"<bsdf type="roughplastic"/>"#) else { panic!() };
+    assert!(matches!(p.ndf, Ndfs::Beckmann(b) if b.alpha == 0.1));
+    // a bitmap diffuse reflectance: the texture is kept and looked up per hit
+    let dir = tempfile::tempdir().unwrap();
+    let mut img = opal::image::Image::new(2, 1);
+    img.data[0] = Spectrum::splat(0.2);
+    img.data[1] = Spectrum::splat(0.6);
+    opal::image::write::write_exr(&img, std::fs::File::create(dir.path().join("t.exr")).unwrap()).unwrap();
+    let xml = format!(
+        r#"<scene version="3.0.0"><shape type="rectangle"><bsdf type="roughplastic">
+           <texture type="bitmap" name="diffuse_reflectance"><string name="filename" value="{}"/></texture>
+           </bsdf></shape></scene>"#,
+        dir.path().join("t.exr").display()
+    );
+    std::fs::write(dir.path().join("s.xml"), xml).unwrap();
+    let d = load_mitsuba_xml(&dir.path().join("s.xml"), &[]).unwrap();
+    let Coated { model: Bxdfs::RoughPlastic(p), .. } = &d.shapes[0].bsdf else {
+        panic!("{:?}", d.shapes[0].bsdf)
+    };
+    // sampling weight from the texture's mean 0.4: 1/(0.4 + 1)
+    assert!((p.spec_weight - 1.0 / 1.4).abs() < 1e-5, "{}", p.spec_weight);
+    opal::scene::Scene::build(&d).unwrap();
+    // thindielectric: bk7 in air
+    let Lobe(Bxdfs::ThinDielectric(t)) = bsdf_of(r#"<bsdf type="thindielectric"/>"#) else { panic!() };
+    assert!((t.eta - 1.5046 / 1.000277).abs() < 1e-6);
+}
+
+#[test]
+fn metal_and_coating_plugin_errors() {
+    let (_, s) = err_body(
+        r#"<shape type="rectangle"><bsdf type="conductor"><string name="material" value="Au"/><float name="eta" value="1"/></bsdf></shape>"#,
+    );
+    assert!(s.contains("either `material` or `eta`/`k`"), "{s}");
+    let (_, s) = err_body(
+        r#"<shape type="rectangle"><bsdf type="conductor"><string name="material" value="Xx"/></bsdf></shape>"#,
+    );
+    assert!(s.contains("material \"Xx\" is not known") && s.contains("Au"), "{s}");
+    let (_, s) = err_body(
+        r#"<shape type="rectangle"><bsdf type="roughconductor"><float name="alpha_u" value="0.1"/></bsdf></shape>"#,
+    );
+    assert!(s.contains("`alpha_u` and `alpha_v`"), "{s}");
+    let (_, s) = err_body(
+        r#"<shape type="rectangle"><bsdf type="roughplastic"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.2"/></bsdf></shape>"#,
+    );
+    assert!(s.contains("unknown parameter `alpha_u`"), "{s}");
+    let (_, s) = err_body(
+        r#"<shape type="rectangle"><bsdf type="plastic"><string name="int_ior" value="glass"/></bsdf></shape>"#,
+    );
+    assert!(s.contains("\"glass\" is not a known material") && s.contains("bk7"), "{s}");
+    let (_, s) = err_body(
+        r#"<shape type="rectangle"><bsdf type="roughplastic"><string name="distribution" value="phong"/></bsdf></shape>"#,
+    );
+    assert!(s.contains("distribution \"phong\" is not supported"), "{s}");
+    // as Mitsuba (which refuses transmissive BSDFs in twosided): a thin sheet has two sides already
+    let d =
+        ok(r#"<shape type="rectangle"><bsdf type="twosided"><bsdf type="thindielectric"/></bsdf></shape>"#);
+    let s = opal::scene::Scene::build(&d).unwrap_err().to_string();
+    assert!(s.contains("dielectric interface"), "{s}");
+}
+
+#[test]
+fn disk_and_cylinder_shapes() {
+    let d = ok(
+        r#"<shape type="disk"><transform name="to_world"><scale value="2"/><translate z="1"/></transform></shape>"#,
+    );
+    let m = &d.shapes[0].mesh;
+    assert!(m.positions.iter().all(|p| (p.z - 1.0).abs() < 1e-6 && p.truncate().length() <= 2.0 + 1e-5));
+    assert!(m.normals.iter().all(|n| (*n - Vec3::Z).length() < 1e-6));
+    let d =
+        ok(r#"<shape type="cylinder"><point name="p0" value="1, 0, 0"/><point name="p1" value="1, 0, 2"/>
+                  <float name="radius" value="0.5"/><boolean name="flip_normals" value="true"/></shape>"#);
+    let m = &d.shapes[0].mesh;
+    for (p, n) in m.positions.iter().zip(&m.normals) {
+        let radial = Vec3::new(p.x - 1.0, p.y, 0.0);
+        assert!((radial.length() - 0.5).abs() < 1e-5 && p.z >= -1e-6 && p.z <= 2.0 + 1e-5);
+        assert!((*n + radial / 0.5).length() < 1e-4, "flipped normals point inwards: {p} {n}");
+    }
+    let (_, s) = err_body(r#"<shape type="cylinder"><float name="radius" value="-1"/></shape>"#);
+    assert!(s.contains("cylinder radius must be > 0"), "{s}");
 }

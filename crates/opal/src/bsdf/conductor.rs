@@ -14,8 +14,11 @@
 //! pdf `= D_wo(wm) / (4 |wo·wm|)`; samples reflected below the horizon fail.
 //! References: Walter et al. 2007; Heitz 2014; the conductor Fresnel equations for a complex
 //! index (e.g. pbrt-v3 §8.2.1).
-//! Tests (below): χ² sampling vs pdf (GGX and Beckmann, three α, four angles), consistency,
-//! reciprocity, Fresnel limits; `R ≤ 1` and `R → 1` as α → 0 in `opal-inverse` `brdf_energy`.
+//! Also Mitsuba's `roughconductor` (scene loader): Beckmann/GGX, isotropic or anisotropic
+//! ([`super::microfacet::Anisotropic`]), [`Shadowing::SeparableMitsuba`], named metals
+//! ([`super::ior`]).
+//! Tests (below): χ² sampling vs pdf (GGX and Beckmann, three α, four angles; anisotropic GGX
+//! and Beckmann with Mitsuba's G1), consistency, reciprocity, Fresnel limits; `R ≤ 1` and `R → 1` as α → 0 in `opal-inverse` `brdf_energy`.
 
 use super::microfacet::{Ndf, Ndfs};
 use super::rough_dielectric::Shadowing;
@@ -173,6 +176,24 @@ mod tests {
                 sample_consistency(&b, 0.7);
                 reciprocity(&b);
             }
+        }
+    }
+
+    /// Mitsuba's `roughconductor`: anisotropic GGX and Beckmann, Mitsuba's G1, gold.
+    #[test]
+    fn anisotropic_mitsuba_roughconductor() {
+        use crate::bsdf::microfacet::{AnisoBase, Anisotropic};
+        let (eta, k) = crate::bsdf::ior::conductor_ior("Au").unwrap();
+        for base in [AnisoBase::Ggx, AnisoBase::Beckmann] {
+            let b = RoughConductor::new(
+                Ndfs::Anisotropic(Anisotropic::new(base, 0.15, 0.45).unwrap()),
+                ConductorFresnel::Complex { eta: Spectrum(eta), k: Spectrum(k) },
+                Spectrum::splat(0.9),
+                Shadowing::SeparableMitsuba,
+            );
+            chi2_at(&format!("roughconductor_aniso_{base:?}"), &b, &[0.0, 0.9, 1.45], 6);
+            sample_consistency(&b, 0.7);
+            reciprocity(&b);
         }
     }
 

@@ -364,6 +364,7 @@ pub(crate) mod test_util {
                     if p < floor { 0.0 } else { p }
                 },
             });
+            eprintln!("chi2 {name} θo = {theta}: p = {:.4} (threshold {:.2e})", r.p_value, r.threshold);
             assert!(r.passed, "{name} θo = {theta}: {r:?}");
         }
     }

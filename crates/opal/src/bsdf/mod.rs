@@ -13,7 +13,9 @@
 //! scattering) and [`rough_dielectric_ms`] (multiple scattering), NDFs in [`microfacet`];
 //! [`dielectric`] (smooth, delta lobes), [`dotted`] (area mixture of two interfaces: rough dots on
 //! a polished land), [`tabulated`] (a rough face tabulated from any of
-//! them, loaded from `.obsdf` files)
+//! them, loaded from `.obsdf` files); Mitsuba's metals and coatings: [`smooth_conductor`]
+//! (`conductor`), [`conductor`] with any NDF incl. anisotropic (`roughconductor`), [`plastic`],
+//! [`rough_plastic`], [`thin_dielectric`], named indices in [`ior`]
 //! (shared machinery in [`lobe`], normalisation expressions in [`normexpr`], names and
 //! constructors in [`registry`]). Tests: χ² of sampling vs pdf, reciprocity, albedo (see each model).
 
@@ -21,18 +23,23 @@ pub mod blinn;
 pub mod conductor;
 pub mod dielectric;
 pub mod dotted;
+pub mod ior;
 pub mod lambert;
 pub mod lobe;
 pub mod lyon;
 pub mod microfacet;
 pub mod normexpr;
 pub mod phong;
+pub mod plastic;
 pub mod pow16;
 pub mod registry;
 pub mod rough_dielectric;
 pub mod rough_dielectric_ms;
+pub mod rough_plastic;
 pub mod schlick;
+pub mod smooth_conductor;
 pub mod tabulated;
+pub mod thin_dielectric;
 
 use crate::math::{Vec2, Vec3};
 use crate::spectrum::Spectrum;
@@ -43,11 +50,15 @@ pub use dotted::Dotted;
 pub use lambert::Lambert;
 pub use lyon::Lyon;
 pub use phong::Phong;
+pub use plastic::Plastic;
 pub use pow16::Pow16;
 pub use rough_dielectric::RoughDielectric;
 pub use rough_dielectric_ms::RoughDielectricMs;
+pub use rough_plastic::RoughPlastic;
 pub use schlick::Schlick;
+pub use smooth_conductor::SmoothConductor;
 pub use tabulated::TabulatedBsdf;
+pub use thin_dielectric::ThinDielectric;
 
 /// Which quantity is transported along the path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -135,6 +146,14 @@ pub enum Bxdfs {
     /// Dotted face: area mixture of two dielectric interfaces (rough dots on a polished or
     /// second rough land; plugin `dotted`).
     Dotted(Dotted),
+    /// Smooth conductor, delta reflection (Mitsuba `conductor`).
+    SmoothConductor(SmoothConductor),
+    /// Smooth plastic: diffuse base under a smooth coating (Mitsuba `plastic`).
+    Plastic(Plastic),
+    /// Rough plastic: diffuse base under a rough coating (Mitsuba `roughplastic`).
+    RoughPlastic(RoughPlastic),
+    /// Thin dielectric sheet (Mitsuba `thindielectric`).
+    ThinDielectric(ThinDielectric),
 }
 
 macro_rules! dispatch {
@@ -152,6 +171,10 @@ macro_rules! dispatch {
             Bxdfs::SmoothDielectric($b) => $e,
             Bxdfs::Tabulated($b) => $e,
             Bxdfs::Dotted($b) => $e,
+            Bxdfs::SmoothConductor($b) => $e,
+            Bxdfs::Plastic($b) => $e,
+            Bxdfs::RoughPlastic($b) => $e,
+            Bxdfs::ThinDielectric($b) => $e,
         }
     };
 }

@@ -6,6 +6,11 @@
 //! * [`cube_mesh`]: the cube `[-1,1]³`, 12 triangles laid out like Mitsuba's `cube` mesh.
 //! * [`sphere_mesh`]: the unit sphere on a latitude–longitude grid; the scene loader uses
 //!   [`SPHERE_SEGMENTS_PHI`]×[`SPHERE_SEGMENTS_THETA`] segments.
+//! * [`disk_mesh`]: the unit disk at z = 0 facing +z (Mitsuba `disk`), polar grid of
+//!   [`DISK_SEGMENTS_PHI`] sectors × [`DISK_SEGMENTS_R`] rings, uv = (r, φ/2π).
+//! * [`cylinder_mesh`]: the open unit cylinder `x² + y² = 1`, 0 ≤ z ≤ 1, normals outwards
+//!   (Mitsuba `cylinder` before `p0`/`p1`/`radius`), [`CYLINDER_SEGMENTS_PHI`] sectors with
+//!   vertices on the surface and radial vertex normals, uv = (φ/2π, z).
 //! * [`recompute_vertex_normals`]: angle-weighted normals (Thürmer & Wüthrich 1998).
 //!
 //! Conventions: counter-clockwise triangles seen from outside, per-vertex normals and uvs
@@ -22,6 +27,78 @@ use crate::math::{Vec2, Vec3};
 pub const SPHERE_SEGMENTS_PHI: usize = 128;
 /// Number of segments in polar angle θ of a tessellated `sphere`.
 pub const SPHERE_SEGMENTS_THETA: usize = 64;
+
+/// Number of sectors of a tessellated `disk` (the inscribed polygon loses 1 − sin(2π/n)·n/(2π)
+/// ≈ 1.0·10⁻⁴ of the area at 256).
+pub const DISK_SEGMENTS_PHI: usize = 256;
+/// Number of rings of a tessellated `disk` (uv = r is interpolated exactly along the radius).
+pub const DISK_SEGMENTS_R: usize = 8;
+/// Number of sectors of a tessellated `cylinder` (the polygon is at most r·(1 − cos(π/n)) ≈
+/// 7.5·10⁻⁵ r inside the surface at 256; shading normals are the exact radial ones).
+pub const CYLINDER_SEGMENTS_PHI: usize = 256;
+
+/// Angle φ_i = 2πi/n as (sin, cos), exact at i = 0 and i = n (the seam).
+fn sector(i: usize, n: usize) -> (f64, f64) {
+    if i == 0 || i == n { (0.0, 1.0) } else { (2.0 * std::f64::consts::PI * i as f64 / n as f64).sin_cos() }
+}
+
+/// Unit disk at z = 0 facing +z (Mitsuba `disk`): `n_phi` sectors × `n_r` rings, vertices on
+/// the circle, normal +z, uv = (r, φ/2π) with φ = atan2(y, x) ∈ [0, 2π) as Mitsuba; the seam
+/// and the centre are duplicated per sector so that uvs are continuous inside each triangle.
+/// Counter-clockwise seen from +z.
+pub fn disk_mesh(n_phi: usize, n_r: usize) -> TriangleMesh {
+    let mut m = TriangleMesh::default();
+    // ring 0 = the centre, duplicated per sector at the sector's middle angle
+    for i in 0..n_phi {
+        m.positions.push(Vec3::ZERO);
+        m.normals.push(Vec3::Z);
+        m.uvs.push(Vec2::new(0.0, (i as f32 + 0.5) / n_phi as f32));
+    }
+    let ring = |k: usize| n_phi + (k - 1) * (n_phi + 1);
+    for k in 1..=n_r {
+        let r = k as f64 / n_r as f64;
+        for i in 0..=n_phi {
+            let (sp, cp) = sector(i, n_phi);
+            m.positions.push(Vec3::new((r * cp) as f32, (r * sp) as f32, 0.0));
+            m.normals.push(Vec3::Z);
+            m.uvs.push(Vec2::new(r as f32, i as f32 / n_phi as f32));
+        }
+    }
+    for i in 0..n_phi {
+        let r1 = ring(1);
+        m.indices.push([i as u32, (r1 + i) as u32, (r1 + i + 1) as u32]);
+        for k in 1..n_r {
+            let (a, b) = (ring(k), ring(k + 1));
+            let (a0, a1, b0, b1) = ((a + i) as u32, (a + i + 1) as u32, (b + i) as u32, (b + i + 1) as u32);
+            m.indices.push([a0, b0, b1]);
+            m.indices.push([a0, b1, a1]);
+        }
+    }
+    m
+}
+
+/// Open unit cylinder `x² + y² = 1`, `0 ≤ z ≤ 1` (Mitsuba `cylinder` in its local frame, no
+/// caps): `n_phi` sectors, vertices on the surface, radial vertex normals pointing outwards,
+/// uv = (φ/2π, z), seam duplicated. Counter-clockwise seen from outside.
+pub fn cylinder_mesh(n_phi: usize) -> TriangleMesh {
+    let mut m = TriangleMesh::default();
+    for z in [0.0f32, 1.0] {
+        for i in 0..=n_phi {
+            let (sp, cp) = sector(i, n_phi);
+            let n = Vec3::new(cp as f32, sp as f32, 0.0);
+            m.positions.push(Vec3::new(n.x, n.y, z));
+            m.normals.push(n);
+            m.uvs.push(Vec2::new(i as f32 / n_phi as f32, z));
+        }
+    }
+    let top = n_phi + 1;
+    for i in 0..n_phi {
+        let (a0, a1, b0, b1) = (i as u32, (i + 1) as u32, (top + i) as u32, (top + i + 1) as u32);
+        m.indices.push([a0, a1, b1]);
+        m.indices.push([a0, b1, b0]);
+    }
+    m
+}
 
 /// Unit square `[-1,1]²` at z = 0 facing +z (Mitsuba `rectangle`), uv = ((x+1)/2, (y+1)/2).
 pub fn rectangle_mesh() -> TriangleMesh {
@@ -192,6 +269,54 @@ pub fn icosphere(levels: usize) -> TriangleMesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn disk_and_cylinder_tessellations() {
+        let area = |m: &TriangleMesh| -> (f64, Vec3) {
+            let (mut a, mut n) = (0.0, Vec3::ZERO);
+            for t in &m.indices {
+                let v = t.map(|i| m.positions[i as usize]);
+                let c = (v[1] - v[0]).cross(v[2] - v[0]);
+                a += 0.5 * c.length() as f64;
+                n += c;
+            }
+            (a, n)
+        };
+        let d = disk_mesh(DISK_SEGMENTS_PHI, DISK_SEGMENTS_R);
+        let (a, n) = area(&d);
+        assert!((a - std::f64::consts::PI).abs() < 2e-4 * std::f64::consts::PI, "disk area {a}");
+        assert!(n.z > 0.0 && n.x.abs() < 1e-3 && n.y.abs() < 1e-3, "faces +z");
+        // uv = (r, φ/2π) at every vertex (the centre's v is free)
+        for (p, uv) in d.positions.iter().zip(&d.uvs) {
+            let r = (p.x * p.x + p.y * p.y).sqrt();
+            assert!((uv.x - r).abs() < 1e-6);
+            if r > 0.0 {
+                let mut phi = p.y.atan2(p.x) / (2.0 * std::f32::consts::PI);
+                if phi < 0.0 {
+                    phi += 1.0;
+                }
+                assert!(
+                    (uv.y - phi).abs() < 1e-5 || (uv.y - 1.0).abs() < 1e-6 && phi.abs() < 1e-6,
+                    "{p} {uv}"
+                );
+            }
+        }
+        let c = cylinder_mesh(CYLINDER_SEGMENTS_PHI);
+        let (a, _) = area(&c);
+        assert!(
+            (a - 2.0 * std::f64::consts::PI).abs() < 2e-4 * 2.0 * std::f64::consts::PI,
+            "cylinder area {a}"
+        );
+        for t in &c.indices {
+            let v = t.map(|i| c.positions[i as usize]);
+            let nf = (v[1] - v[0]).cross(v[2] - v[0]);
+            let centre = (v[0] + v[1] + v[2]) / 3.0;
+            assert!(nf.dot(Vec3::new(centre.x, centre.y, 0.0)) > 0.0, "outward");
+        }
+        for ((p, n), uv) in c.positions.iter().zip(&c.normals).zip(&c.uvs) {
+            assert!((n.length() - 1.0).abs() < 1e-6 && (n.x - p.x).abs() < 1e-6 && (uv.y - p.z).abs() < 1e-6);
+        }
+    }
 
     #[test]
     fn sphere_tessellation_is_closed_outward_and_close_to_the_sphere() {

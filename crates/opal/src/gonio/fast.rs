@@ -120,7 +120,7 @@ impl FastPlate {
                     match ndf {
                         Ndfs::Ggx(g) => Some(FastFace::Ggx(*g)),
                         Ndfs::Beckmann(b) => Some(FastFace::Beckmann { ndf: *b, mitsuba_g1 }),
-                        Ndfs::Numeric(_) => None,
+                        Ndfs::Numeric(_) | Ndfs::Anisotropic(_) => None,
                     }
                 }
                 Face::Dotted { .. } => None,

@@ -297,7 +297,28 @@ impl Scene {
         let m = &self.shapes[si.shape as usize].material;
         let flip = m.two_sided() && wo.dot(si.ng) < 0.0;
         let n = if flip { -si.ns } else { si.ns };
-        (Frame::from_normal(n), m.bsdf(si.uv))
+        let frame = if m.anisotropic() { self.uv_frame(si, n) } else { Frame::from_normal(n) };
+        (frame, m.bsdf(si.uv))
+    }
+
+    /// Shading frame with its tangent along ∂p/∂u of the hit triangle (projected onto the
+    /// plane of `n`), as Mitsuba orients anisotropic BSDFs; [`Frame::from_normal`] when the mesh
+    /// has no uvs or they are degenerate.
+    fn uv_frame(&self, si: &SurfaceInteraction, n: Vec3) -> Frame {
+        let shape = &self.shapes[si.shape as usize];
+        let m = &shape.mesh;
+        if m.uvs.is_empty() {
+            return Frame::from_normal(n);
+        }
+        let [i0, i1, i2] = m.indices[(si.prim - shape.first_prim) as usize].map(|i| i as usize);
+        let (duv0, duv1) = (m.uvs[i1] - m.uvs[i0], m.uvs[i2] - m.uvs[i0]);
+        let (dp0, dp1) = (m.positions[i1] - m.positions[i0], m.positions[i2] - m.positions[i0]);
+        let det = duv0.x * duv1.y - duv0.y * duv1.x;
+        if det == 0.0 || !det.is_finite() {
+            return Frame::from_normal(n);
+        }
+        let dpdu = (dp0 * duv1.y - dp1 * duv0.y) / det;
+        Frame::from_normal_tangent(n, dpdu)
     }
 
     /// Albedo (diffuse reflectance) of a shape at `uv`, when its BSDF is diffuse.

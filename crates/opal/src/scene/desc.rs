@@ -118,6 +118,14 @@ pub enum BsdfDesc {
     /// `blinn`, `schlick`, `lyon`, `pow16`, `microfacet_conductor`) or method A's
     /// `roughdielectric` (single or multiple scattering).
     Lobe(crate::bsdf::Bxdfs),
+    /// A coated model (`plastic`, `roughplastic`) whose diffuse reflectance is a bitmap: the
+    /// model (built with the texture's mean as its constant) and the texture looked up per hit.
+    Coated {
+        /// The model ([`crate::bsdf::Bxdfs::Plastic`] or [`crate::bsdf::Bxdfs::RoughPlastic`]).
+        model: crate::bsdf::Bxdfs,
+        /// Diffuse reflectance.
+        diffuse: TextureDesc,
+    },
 }
 
 /// Perspective camera (Mitsuba `perspective`).

@@ -6,6 +6,9 @@
 //!   runtime [`Texture`] (a bitmap's pixels are shared with the description through their
 //!   `Arc`, not copied); any other model is stored once as its [`Bxdfs`]. Building it is also
 //!   where a material's ranges are validated (errors name the shape).
+//! * A coated model (`plastic`, `roughplastic`) with a bitmap diffuse reflectance becomes
+//!   [`Material::Coated`]: the model stored once plus the runtime texture; its view
+//!   [`Bsdf::Coated`] carries the reflectance looked up at the hit.
 //! * [`Bsdf`]: the scattering model at one hit, a `Copy` view returned by
 //!   [`Scene::bsdf`](super::Scene::bsdf): a [`Lambert`] with the reflectance looked up at the
 //!   hit's uv, or a reference to the shape's [`Bxdfs`]. Before, every hit cloned the `Bxdfs`
@@ -34,6 +37,15 @@ pub enum Material {
         /// Wrapped in `twosided`: the shading normal faces the outgoing direction.
         two_sided: bool,
     },
+    /// A coated model (plastic, rough plastic) with a textured diffuse reflectance.
+    Coated {
+        /// The model, stored once.
+        bxdf: Bxdfs,
+        /// Diffuse reflectance, looked up per hit.
+        diffuse: Texture,
+        /// Wrapped in `twosided`.
+        two_sided: bool,
+    },
     /// Any other model (a method-B lobe, a dielectric interface, a tabulated face...).
     Model {
         /// The model, stored once.
@@ -54,13 +66,23 @@ impl Material {
         let what = || format!("bsdf of shape '{id}'");
         match inner {
             BsdfDesc::TwoSided(_) => Err(Error::invalid(what(), "twosided inside twosided")),
-            BsdfDesc::Lobe(Bxdfs::SmoothDielectric(_) | Bxdfs::Tabulated(_) | Bxdfs::Dotted(_))
-                if two_sided =>
-            {
-                Err(Error::invalid(
-                    what(),
-                    "twosided around a dielectric interface (dielectric, tabulated, blendbsdf): an interface already has two sides (inside = behind the normal)",
-                ))
+            BsdfDesc::Lobe(
+                Bxdfs::SmoothDielectric(_)
+                | Bxdfs::Tabulated(_)
+                | Bxdfs::Dotted(_)
+                | Bxdfs::ThinDielectric(_),
+            ) if two_sided => Err(Error::invalid(
+                what(),
+                "twosided around a dielectric interface (dielectric, thindielectric, tabulated, blendbsdf): an interface already has two sides (inside = behind the normal)",
+            )),
+            BsdfDesc::Coated { model, diffuse } => {
+                if !matches!(model, Bxdfs::Plastic(_) | Bxdfs::RoughPlastic(_)) {
+                    return Err(Error::invalid(
+                        what(),
+                        "a textured diffuse reflectance needs plastic or roughplastic",
+                    ));
+                }
+                Ok(Material::Coated { bxdf: model.clone(), diffuse: Texture::new(diffuse), two_sided })
             }
             BsdfDesc::Lobe(b) => Ok(Material::Model { bxdf: b.clone(), two_sided }),
             BsdfDesc::Diffuse { reflectance } => {
@@ -74,11 +96,29 @@ impl Material {
         }
     }
 
+    /// Whether the model is anisotropic (its shading frame must follow the surface's uv
+    /// tangent, see [`super::Scene::bsdf`]).
+    #[inline]
+    pub fn anisotropic(&self) -> bool {
+        matches!(
+            self,
+            Material::Model {
+                bxdf: Bxdfs::RoughConductor(crate::bsdf::RoughConductor {
+                    ndf: crate::bsdf::microfacet::Ndfs::Anisotropic(_),
+                    ..
+                }),
+                ..
+            }
+        )
+    }
+
     /// Whether the material was wrapped in `twosided`.
     #[inline]
     pub fn two_sided(&self) -> bool {
         match self {
-            Material::Diffuse { two_sided, .. } | Material::Model { two_sided, .. } => *two_sided,
+            Material::Diffuse { two_sided, .. }
+            | Material::Model { two_sided, .. }
+            | Material::Coated { two_sided, .. } => *two_sided,
         }
     }
 
@@ -89,6 +129,7 @@ impl Material {
         match self {
             Material::Diffuse { reflectance, .. } => Bsdf::Lambert(Lambert::new(reflectance.eval(uv))),
             Material::Model { bxdf, .. } => Bsdf::Model(bxdf),
+            Material::Coated { bxdf, diffuse, .. } => Bsdf::Coated { model: bxdf, kd: diffuse.eval(uv) },
         }
     }
 
@@ -96,7 +137,7 @@ impl Material {
     pub fn diffuse_albedo(&self, uv: Vec2) -> Option<Spectrum> {
         match self {
             Material::Diffuse { reflectance, .. } => Some(reflectance.eval(uv)),
-            Material::Model { .. } => None,
+            Material::Model { .. } | Material::Coated { .. } => None,
         }
     }
 }
@@ -108,6 +149,13 @@ pub enum Bsdf<'a> {
     Lambert(Lambert),
     /// The material's model.
     Model(&'a Bxdfs),
+    /// A coated model with the diffuse reflectance at the hit.
+    Coated {
+        /// The model ([`Bxdfs::Plastic`] or [`Bxdfs::RoughPlastic`]).
+        model: &'a Bxdfs,
+        /// Diffuse reflectance at the hit.
+        kd: Spectrum,
+    },
 }
 
 impl Bxdf for Bsdf<'_> {
@@ -116,6 +164,11 @@ impl Bxdf for Bsdf<'_> {
         match self {
             Bsdf::Lambert(b) => b.eval(wo, wi, mode),
             Bsdf::Model(b) => b.eval(wo, wi, mode),
+            Bsdf::Coated { model, kd } => match model {
+                Bxdfs::Plastic(p) => p.eval_kd(*kd, wo, wi),
+                Bxdfs::RoughPlastic(p) => p.eval_kd(*kd, wo, wi),
+                b => b.eval(wo, wi, mode),
+            },
         }
     }
     #[inline]
@@ -123,6 +176,11 @@ impl Bxdf for Bsdf<'_> {
         match self {
             Bsdf::Lambert(b) => b.pdf(wo, wi, mode),
             Bsdf::Model(b) => b.pdf(wo, wi, mode),
+            Bsdf::Coated { model, .. } => match model {
+                Bxdfs::Plastic(p) => p.pdf_dir(wo, wi),
+                Bxdfs::RoughPlastic(p) => p.pdf_dir(wo, wi),
+                b => b.pdf(wo, wi, mode),
+            },
         }
     }
     #[inline]
@@ -130,13 +188,18 @@ impl Bxdf for Bsdf<'_> {
         match self {
             Bsdf::Lambert(b) => b.sample(wo, uc, u, mode),
             Bsdf::Model(b) => b.sample(wo, uc, u, mode),
+            Bsdf::Coated { model, kd } => match model {
+                Bxdfs::Plastic(p) => p.sample_kd(*kd, wo, uc, u),
+                Bxdfs::RoughPlastic(p) => p.sample_kd(*kd, wo, uc, u),
+                b => b.sample(wo, uc, u, mode),
+            },
         }
     }
     #[inline]
     fn flags(&self) -> BxdfFlags {
         match self {
             Bsdf::Lambert(b) => b.flags(),
-            Bsdf::Model(b) => b.flags(),
+            Bsdf::Model(b) | Bsdf::Coated { model: b, .. } => b.flags(),
         }
     }
 }

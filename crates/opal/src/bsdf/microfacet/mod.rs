@@ -18,10 +18,11 @@
 //! * Visible-normal sampling: `sample_visible(w, u)` draws `wm` with density
 //!   `D_w(wm) = G1(w, wm) |w·wm| D(wm) / |cos θ|` (per solid angle of `wm`), which
 //!   `pdf_visible(w, wm)` returns. For `w.z < 0` the mirrored direction is used.
-//! * Isotropic roughness `alpha` (the RMS slope is `alpha/√2` for Beckmann).
+//! * Isotropic roughness `alpha` (the RMS slope is `alpha/√2` for Beckmann); [`Anisotropic`]
+//!   takes `alpha_u` along x and `alpha_v` along y.
 //!
 //! Models (one per file): [`beckmann`] (Gaussian slopes), [`ggx`] (GGX / Trowbridge–Reitz,
-//! Cauchy-like slopes), [`numeric`] (Student-t family between them, tabulated D(θm), peak
+//! Cauchy-like slopes), [`anisotropic`] (either, stretched to `α_u ≠ α_v`), [`numeric`] (Student-t family between them, tabulated D(θm), peak
 //! shift δ, hybrid analytic + tabulated; Λ from the projected-area integral).
 //!
 //! References: B. Walter et al., "Microfacet Models for Refraction through Rough Surfaces",
@@ -33,10 +34,12 @@
 //! Tests (below, for every NDF): normalisation by quadrature, weak white furnace, χ² of
 //! `sample_visible` against `pdf_visible` from both sides, height-correlated `G` ≥ separable `G`.
 
+pub mod anisotropic;
 pub mod beckmann;
 pub mod ggx;
 pub mod numeric;
 
+pub use anisotropic::{AnisoBase, Anisotropic};
 pub use beckmann::Beckmann;
 pub use ggx::Ggx;
 pub use numeric::{NumericNdf, Profile};
@@ -48,7 +51,8 @@ use crate::math::{Vec2, Vec3};
 pub trait Ndf {
     /// Distribution of normals D(wm) (per unit solid angle of `wm`; zero for `wm.z ≤ 0`).
     fn d(&self, wm: Vec3) -> f32;
-    /// Smith auxiliary function Λ(w); depends on |cos θ| only (isotropic NDFs).
+    /// Smith auxiliary function Λ(w); depends on |cos θ| only for the isotropic NDFs (on the
+    /// azimuth too for [`Anisotropic`]).
     fn lambda(&self, w: Vec3) -> f32;
     /// Smith masking G1(w, wm) = χ⁺((w·wm)(w·n)) / (1 + Λ(w)).
     #[inline]
@@ -107,6 +111,8 @@ pub enum Ndfs {
     Ggx(Ggx),
     /// Tabulated isotropic NDF (Student-t, table, shifted, hybrid), shared between clones.
     Numeric(std::sync::Arc<NumericNdf>),
+    /// Anisotropic GGX or Beckmann (stretched; Mitsuba's `alpha_u` ≠ `alpha_v`).
+    Anisotropic(Anisotropic),
 }
 
 impl Ndfs {
@@ -128,6 +134,7 @@ impl Ndfs {
     pub fn g1_mitsuba(&self, w: Vec3, wm: Vec3) -> f32 {
         match self {
             Ndfs::Beckmann(b) => b.g1_mitsuba(w, wm),
+            Ndfs::Anisotropic(a) => a.g1_mitsuba(w, wm),
             n => n.g1(w, wm),
         }
     }
@@ -144,6 +151,7 @@ macro_rules! ndf_dispatch {
             Ndfs::Beckmann($n) => $e,
             Ndfs::Ggx($n) => $e,
             Ndfs::Numeric($n) => $e,
+            Ndfs::Anisotropic($n) => $e,
         }
     };
 }

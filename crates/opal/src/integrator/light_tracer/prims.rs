@@ -57,7 +57,7 @@ pub(super) fn prims<'a>(
             Material::Diffuse { reflectance, two_sided } => {
                 Mat::Diffuse { tex: reflectance, two_sided: *two_sided }
             }
-            Material::Model { .. } => Mat::Generic,
+            Material::Model { .. } | Material::Coated { .. } => Mat::Generic,
         };
         let (width, height) = targets[k].as_ref().map_or((0, 0), |t| (t.width as u32, t.height as u32));
         for (j, idx) in m.indices.iter().enumerate() {

@@ -21,13 +21,14 @@
 //! Layout (private submodules): `xml` reads files into an element tree (substitution,
 //! defaults, includes); `properties` parses parameter elements and references into typed
 //! property lists; `transforms` composes `to_world` and applies it to meshes; `plugins` maps
-//! each `(tag, type)` to its description. Analytic shapes are tessellated by
+//! each `(tag, type)` to its description (`bsdfs`: Mitsuba's metals, plastics and thin sheets). Analytic shapes are tessellated by
 //! [`crate::geometry::shapes`] (re-exported here).
 //!
 //! Tests: unit tests in `plugins` (dispatch table, field of view) and
 //! [`crate::geometry::shapes`] (tessellation), and `crates/opal/tests/scene_load.rs` (Cornell
 //! box, every element, every error case).
 
+mod bsdfs;
 mod plugins;
 mod properties;
 mod transforms;

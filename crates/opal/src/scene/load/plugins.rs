@@ -20,7 +20,8 @@ use super::xml::{Elem, Loc};
 use crate::error::{Error, Result};
 use crate::geometry::TriangleMesh;
 use crate::geometry::shapes::{
-    SPHERE_SEGMENTS_PHI, SPHERE_SEGMENTS_THETA, cube_mesh, rectangle_mesh, sphere_mesh,
+    CYLINDER_SEGMENTS_PHI, DISK_SEGMENTS_PHI, DISK_SEGMENTS_R, SPHERE_SEGMENTS_PHI, SPHERE_SEGMENTS_THETA,
+    cube_mesh, cylinder_mesh, disk_mesh, rectangle_mesh, sphere_mesh,
 };
 use crate::image::read::{read_image_decoded, srgb_to_linear};
 use crate::math::{DMat4, DVec3};
@@ -34,7 +35,7 @@ use std::sync::Arc;
 /// before the element's children are read. Adding a plugin = one arm in
 /// `Loader::instantiate` + its name here (a unit test checks the two agree).
 pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
-    ("shape", &["obj", "ply", "rectangle", "cube", "sphere"]),
+    ("shape", &["obj", "ply", "rectangle", "cube", "sphere", "disk", "cylinder"]),
     (
         "bsdf",
         &[
@@ -50,6 +51,11 @@ pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
             "tabulated",
             "roughdielectric",
             "blendbsdf",
+            "conductor",
+            "roughconductor",
+            "plastic",
+            "roughplastic",
+            "thindielectric",
         ],
     ),
     ("texture", &["bitmap"]),
@@ -175,6 +181,9 @@ impl Loader {
                 "phong" | "blinn" | "schlick" | "lyon" | "pow16" | "microfacet_conductor" | "roughdielectric",
             ) => bsdf_lobe(e, &ty, p)?,
             ("bsdf", "dielectric") => bsdf_dielectric(e, p)?,
+            ("bsdf", "conductor" | "roughconductor" | "plastic" | "roughplastic" | "thindielectric") => {
+                super::bsdfs::bsdf_mitsuba_material(e, &ty, p, &mut self.warnings)?
+            }
             ("bsdf", "blendbsdf") => bsdf_blend(e, p)?,
             ("bsdf", "tabulated") => {
                 let (fname, floc) = p
@@ -187,7 +196,7 @@ impl Loader {
                 Object::Bsdf(BsdfDesc::Lobe(crate::bsdf::Bxdfs::Tabulated(b)))
             }
             ("texture", "bitmap") => Object::Texture(TextureDesc::Bitmap(self.bitmap(e, &mut p)?)),
-            ("shape", "obj" | "ply" | "rectangle" | "cube" | "sphere") => {
+            ("shape", "obj" | "ply" | "rectangle" | "cube" | "sphere" | "disk" | "cylinder") => {
                 Object::Shape(Box::new(self.shape(e, &ty, &mut p)?))
             }
             ("emitter", "area") => {
@@ -363,6 +372,27 @@ impl Loader {
                     DMat4::from_translation(center) * DMat4::from_scale(DVec3::splat(radius)),
                 )
             }
+            "disk" => Source::Mesh(disk_mesh(DISK_SEGMENTS_PHI, DISK_SEGMENTS_R), DMat4::IDENTITY),
+            "cylinder" => {
+                let p0 = p.point("p0")?.unwrap_or(DVec3::ZERO);
+                let p1 = p.point("p1")?.unwrap_or(DVec3::Z);
+                let radius = match p.float_at("radius")? {
+                    None => 1.0,
+                    Some((r, l)) => {
+                        if !(r > 0.0 && r.is_finite()) {
+                            return Err(l.err(format!("cylinder radius must be > 0, got {r}")));
+                        }
+                        r
+                    }
+                };
+                let d = p1 - p0;
+                let len = d.length();
+                if !(len > 0.0 && len.is_finite()) {
+                    return Err(e.loc.err(format!("{what}: p0 and p1 must differ")));
+                }
+                supported = "p0, p1, radius, to_world, flip_normals, a nested <bsdf>, a nested <emitter type=\"area\">";
+                Source::Mesh(cylinder_mesh(CYLINDER_SEGMENTS_PHI), cylinder_frame(p0, d / len, radius, len))
+            }
             _ => unreachable!("dispatch only routes supported shapes here"),
         };
         let bsdf = match p.object("bsdf")? {
@@ -452,6 +482,20 @@ impl Loader {
             spp,
         })
     }
+}
+
+/// Mitsuba's local transform of a `cylinder`: translate(p0) · to_frame(Frame(axis)) ·
+/// scale(radius, radius, length), the frame built as Mitsuba's `coordinate_system` (Duff et al.
+/// 2017, the same as [`crate::math::Frame::from_normal`]) so that uvs land the same way.
+fn cylinder_frame(p0: DVec3, n: DVec3, radius: f64, len: f64) -> DMat4 {
+    let sign = 1.0f64.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    let s = DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    let t = DVec3::new(b, sign + n.y * n.y * a, -n.y);
+    DMat4::from_translation(p0)
+        * DMat4::from_cols(s.extend(0.0), t.extend(0.0), n.extend(0.0), glam::DVec4::W)
+        * DMat4::from_scale(DVec3::new(radius, radius, len))
 }
 
 /// Where a shape's mesh comes from: a file (read after all parameters are checked) or a

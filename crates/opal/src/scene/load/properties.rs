@@ -106,6 +106,14 @@ impl Props {
             Some(p) => Err(self.type_err(&p, "a string")),
         }
     }
+    /// The parameter `name` if it is a string (left in place otherwise).
+    pub(super) fn string_at_opt(&mut self, name: &str) -> Option<(String, Loc)> {
+        let i = self.params.iter().position(|p| p.name == name && matches!(p.val, Val::Str(_)))?;
+        match self.params.remove(i) {
+            Param { val: Val::Str(v), loc, .. } => Some((v, loc)),
+            _ => unreachable!(),
+        }
+    }
     pub(super) fn point(&mut self, name: &str) -> Result<Option<DVec3>> {
         match self.take(name) {
             None => Ok(None),
