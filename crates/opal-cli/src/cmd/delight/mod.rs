@@ -719,6 +719,7 @@ pub fn run(a: DelightArgs) -> Result<i32> {
     util::set_threads(a.threads);
     let log = |l: &str| eprintln!("{l}");
     util::install_interrupt_handler();
+    let output_existed = a.output.exists();
     resume::save_args(&a.output.join(CHECKPOINT))?;
     let report = run_pipeline(&a, &log).map_err(|e| match e.downcast_ref::<opal::error::Error>() {
         Some(opal::error::Error::Interrupted { .. }) => {
@@ -727,7 +728,11 @@ pub fn run(a: DelightArgs) -> Result<i32> {
                 a.output.display()
             ))
         }
-        _ => e,
+        _ => {
+            // failed (bad input, …): leave no saved command line behind unless iterations were kept
+            resume::discard_args(&a.output.join(CHECKPOINT), (!output_existed).then_some(a.output.as_path()));
+            e
+        }
     })?;
     // finished: the checkpoint of the iterations is no longer needed
     let _ = std::fs::remove_dir_all(a.output.join(CHECKPOINT));

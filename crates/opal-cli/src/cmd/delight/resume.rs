@@ -41,6 +41,20 @@ pub fn save_args(checkpoint: &Path) -> Result<()> {
     crate::util::write_bytes_atomic(&checkpoint.join(ARGS_FILE), text.as_bytes())
 }
 
+/// Removes the saved command line of a run that failed before keeping any iteration (no
+/// `state.json` beside it), then the checkpoint folder and `created` (the output folder, when
+/// the run created it) if they are left empty.
+pub fn discard_args(checkpoint: &Path, created: Option<&Path>) {
+    if checkpoint.join("state.json").exists() {
+        return;
+    }
+    let _ = std::fs::remove_file(checkpoint.join(ARGS_FILE));
+    let _ = std::fs::remove_dir(checkpoint);
+    if let Some(out) = created {
+        let _ = std::fs::remove_dir(out);
+    }
+}
+
 /// Expands `opal [--quiet] delight --resume OUTDIR` (also `--resume=OUTDIR`) into the saved
 /// command line of the run in OUTDIR plus `--resume`, after changing into its working directory;
 /// any other command line is returned unchanged.
