@@ -119,6 +119,8 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "light_paths_total",
         "timings_seconds",
         "cpu_seconds",
+        "memory_mb",
+        "view_sizes",
         "outputs",
         "view_error_range",
         "texel_error_range",
