@@ -119,6 +119,8 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "light_paths_total",
         "timings_seconds",
         "cpu_seconds",
+        "memory_mb",
+        "view_sizes",
         "outputs",
         "view_error_range",
         "texel_error_range",
@@ -624,6 +626,41 @@ fn acceptance_mitsuba_cbox() {
 /// `--refine-poses full`: report.json lists the per-view corrections and OUTPUT/transforms.json
 /// holds the poses (readable as views again). The tiny 24² views have too few pixels for an
 /// alignment (< 500), so every correction is rejected, flagged and the given poses are kept.
+/// `--max-view-pixels`: 24² views limited to 144 pixels are read as 12² views (box-filtered,
+/// same frustum); the re-renders and the region statistics follow the
+/// coarse views; report.json gives the working sizes and the memory per stage.
+#[test]
+fn max_view_pixels_works_from_downsampled_views() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (_, report) = tiny_run_with(tmp.path(), &cbox(), &["--max-view-pixels", "144"]);
+    assert_eq!(report["settings"]["max_view_pixels"], 144);
+    for s in report["view_sizes"].as_array().unwrap() {
+        assert_eq!(s, &serde_json::json!([12, 12]));
+    }
+    for r in report["rerenders"].as_array().unwrap() {
+        assert_eq!(r["size"], serde_json::json!([12, 12]));
+    }
+    // the photos as read: the mean of a coarse view is that of the full one (box filter)
+    let (full, _) = opal_inverse::delight::views::read_views(&tmp.path().join("transforms.json")).unwrap();
+    let (coarse, _) =
+        opal_inverse::delight::views::read_views_limited(&tmp.path().join("transforms.json"), Some(144))
+            .unwrap();
+    for (f, c) in full.iter().zip(&coarse) {
+        let mean =
+            |i: &opal::image::Image| i.data.iter().map(|p| p.0[1] as f64).sum::<f64>() / i.data.len() as f64;
+        assert!((mean(&f.image) - mean(&c.image)).abs() <= 1e-5 * mean(&f.image).max(1e-3));
+        assert_eq!((c.camera.width, c.camera.height), (12, 12));
+    }
+    // resident memory at each stage's end and the peak so far (from /proc/self/status)
+    let mem = report["memory_mb"].as_object().unwrap();
+    #[cfg(target_os = "linux")]
+    for k in ["unwrap", "direct", "luminance", "total", "outputs_and_rerenders"] {
+        let m = &mem[k];
+        assert!(m["peak_so_far"].as_f64().unwrap() >= m["rss_at_end"].as_f64().unwrap(), "{k}: {m}");
+    }
+    assert!(mem.contains_key("total"));
+}
+
 #[test]
 fn refine_poses_writes_transforms_and_corrections() {
     let tmp = tempfile::tempdir().unwrap();

@@ -58,6 +58,7 @@ mod checkpoint;
 pub mod colmap;
 pub mod contact;
 mod direct;
+pub mod downsample;
 pub mod footprint;
 pub mod gains;
 pub mod gather;
@@ -82,7 +83,7 @@ pub use pose::{PoseRefinement, PoseReport, PoseSettings, ViewPose};
 pub use result::{DelightResult, IterationStats, ObjectResult};
 pub use settings::{DebugSettings, DelightSettings, LightPaths, UpdateRule};
 pub use smooth::{reached_texels, smooth_in_charts, smooth_in_charts_masked};
-pub use timing::{StageClock, cpu_seconds};
+pub use timing::{StageClock, cpu_seconds, rss_mb};
 
 use opal::image::Image;
 use opal::scene::desc::{BitmapDesc, BsdfDesc, FilterType, SceneDesc, TextureDesc, WrapMode};

@@ -37,6 +37,20 @@ pub fn delight(
     if views.is_empty() {
         return Err(Error::invalid("views", "no view given"));
     }
+    // 0. the working views: larger ones box-filtered onto coarser films (one copy at a time)
+    let coarse: Option<Vec<View>> = s
+        .max_view_pixels
+        .filter(|&m| views.iter().any(|v| v.image.data.len() > m))
+        .map(|m| views.iter().map(|v| super::downsample::downsample_view(v.clone(), m)).collect());
+    if let Some(c) = &coarse {
+        let (w0, h0, w1, h1) =
+            (views[0].image.width, views[0].image.height, c[0].image.width, c[0].image.height);
+        log(&format!(
+            "views downsampled to at most {} pixels (first view {w0}×{h0} → {w1}×{h1})",
+            s.max_view_pixels.unwrap_or(0)
+        ));
+    }
+    let views: &[View] = coarse.as_deref().unwrap_or(views);
     let inp = Inputs { desc, scene: &scene, s, log };
     // 1. unwrap
     let selected = unwrap::select_objects(&scene, s.objects.as_deref())?;

@@ -130,6 +130,9 @@ pub struct DelightResult {
     /// CPU seconds (user + system of the whole process, all threads) per stage, same names as
     /// `timings` (NaN where `/proc/self/stat` is not available).
     pub cpu_timings: Vec<(String, f64)>,
+    /// Per stage of `timings`: the process's resident memory at the stage's end and its peak so
+    /// far, MB ([`rss_mb`](super::rss_mb); NaN where `/proc/self/status` is not available).
+    pub memory_mb: Vec<(String, [f64; 2])>,
     /// Light paths traced in total.
     pub light_paths: u64,
 }

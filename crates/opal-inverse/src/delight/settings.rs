@@ -58,6 +58,11 @@ pub struct DelightSettings {
     /// Upper clamp of the resolution from the cameras: 4096 by default, up to
     /// [`LARGEST_RESOLUTION`](super::footprint::LARGEST_RESOLUTION) (8192) on request.
     pub max_resolution: usize,
+    /// Work from views of at most this many pixels: larger views are box-filtered onto a
+    /// coarser film of the same frustum first ([`super::downsample`]); everything after (texture
+    /// resolution from the pixel footprints, luminance maps, super-resolution) sees the coarse
+    /// views. `None` = the views as given.
+    pub max_view_pixels: Option<usize>,
     /// Seed.
     pub seed: u64,
     /// Keep usable existing UVs.
@@ -121,6 +126,7 @@ impl Default for DelightSettings {
             light_paths: LightPaths::TargetNoise(super::noise::DEFAULT_TARGET_NOISE),
             resolution: None,
             max_resolution: super::footprint::MAX_RESOLUTION,
+            max_view_pixels: None,
             seed: 0,
             keep_uvs: true,
             direct_samples: 64,

@@ -57,6 +57,13 @@ pub fn opengl_to_mitsuba(m: Mat4) -> Mat4 {
 /// malformed entries are errors; non-finite or negative pixels are masked out (counted in
 /// [`View::bad_pixels`]) and reported in the returned warnings.
 pub fn read_views(path: &Path) -> Result<(Vec<View>, Vec<String>)> {
+    read_views_limited(path, None)
+}
+
+/// [`read_views`] with each view downsampled to at most `max_pixels` pixels as soon as it is
+/// read ([`super::downsample::downsample_view`]): only one full-size image is held at a time.
+/// The bad-pixel warnings count the pixels of the file.
+pub fn read_views_limited(path: &Path, max_pixels: Option<usize>) -> Result<(Vec<View>, Vec<String>)> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let j: serde_json::Value = serde_json::from_str(&text).map_err(|e| Error::Parse {
         path: path.to_path_buf(),
@@ -170,12 +177,16 @@ pub fn read_views(path: &Path) -> Result<(Vec<View>, Vec<String>)> {
             far_clip: 1e6,
             spp: None,
         };
-        views.push(View {
+        let view = View {
             name: desc.id.clone(),
             path: img_path,
             camera: Camera::new(&desc),
             image,
             bad_pixels: bad,
+        };
+        views.push(match max_pixels {
+            Some(m) => super::downsample::downsample_view(view, m),
+            None => view,
         });
     }
     Ok((views, warnings))

@@ -15,7 +15,8 @@ use opal::image::Image;
 use opal::integrator::path::{PathSettings, render};
 use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
-use opal_inverse::delight::views::{View, read_views};
+use opal_inverse::delight::downsample::downsample_view;
+use opal_inverse::delight::views::{View, read_views_limited};
 use opal_inverse::delight::{
     DelightResult, DelightSettings, LightPaths, ObjectResult, PoseRefinement, PoseSettings, StageClock,
     UpdateRule, ViewGainMode, ViewGainSettings, apply_view_gains, delight, object_masks, recovered_desc,
@@ -64,6 +65,12 @@ pub struct DelightArgs {
     /// Upper clamp of `--resolution auto`: 4096 (default) up to 8192.
     #[arg(long, default_value_t = 4096)]
     pub max_resolution: usize,
+    /// Work from views of at most this many pixels (0 = the photos as they are): a larger photo
+    /// is box-filtered onto a coarser film of the same frustum as it is read (only one full-size
+    /// photo is in memory at a time). The texture resolution follows the coarse pixels; photos
+    /// and re-renders are compared at the coarse size.
+    #[arg(long, default_value_t = 0)]
+    pub max_view_pixels: usize,
     /// Unwrap every object even when its own UVs are usable.
     #[arg(long)]
     pub unwrap_all: bool,
@@ -263,10 +270,12 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
             .into_iter()
             .find(|d| d.is_dir())
             .unwrap_or_else(|| a.views.clone());
-        opal_inverse::delight::colmap::read_colmap(&a.views, &images)
-            .with_context(|| format!("cannot read the COLMAP model {}", a.views.display()))?
+        let (v, w) = opal_inverse::delight::colmap::read_colmap(&a.views, &images)
+            .with_context(|| format!("cannot read the COLMAP model {}", a.views.display()))?;
+        (v.into_iter().map(|v| downsample_view(v, a.max_view_pixels)).collect(), w)
     } else {
-        read_views(&a.views).with_context(|| format!("cannot read the views {}", a.views.display()))?
+        read_views_limited(&a.views, (a.max_view_pixels > 0).then_some(a.max_view_pixels))
+            .with_context(|| format!("cannot read the views {}", a.views.display()))?
     };
     for w in &vwarn {
         log(&format!("warning: {w}"));
@@ -358,6 +367,7 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         light_paths,
         resolution,
         max_resolution: a.max_resolution,
+        max_view_pixels: (a.max_view_pixels > 0).then_some(a.max_view_pixels),
         seed: a.seed,
         keep_uvs: !a.unwrap_all,
         update,
@@ -645,6 +655,19 @@ fn write_outputs(
         timings.insert(name.into(), json!(w));
         cpu.insert(name.into(), json!(c));
     }
+    // resident memory at each stage's end and the peak so far (MB)
+    let mut memory: serde_json::Map<String, serde_json::Value> = r
+        .memory_mb
+        .iter()
+        .map(|(k, [now, peak])| {
+            (k.clone(), json!({"rss_at_end": finite_or_null(*now), "peak_so_far": finite_or_null(*peak)}))
+        })
+        .collect();
+    let (now, peak) = opal_inverse::delight::rss_mb();
+    memory.insert(
+        "outputs_and_rerenders".into(),
+        json!({"rss_at_end": finite_or_null(now), "peak_so_far": finite_or_null(peak)}),
+    );
     let finite = |x: f64| if x.is_finite() { json!(x) } else { json!(null) };
     let view_gains = r.view_gains.as_ref().map(|g| {
         json!({
@@ -670,7 +693,7 @@ fn write_outputs(
     });
     let report = json!({
         "scene": a.scene, "views": a.views, "n_views": views.len(),
-        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "target_noise": a.target_noise, "resolution": a.resolution, "max_resolution": a.max_resolution, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio, "refine_poses": a.refine_poses},
+        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "target_noise": a.target_noise, "resolution": a.resolution, "max_resolution": a.max_resolution, "max_view_pixels": a.max_view_pixels, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio, "refine_poses": a.refine_poses},
         "view_gains": view_gains,
         "poses": poses,
         "converged": r.converged,
@@ -687,6 +710,8 @@ fn write_outputs(
         "light_paths_total": r.light_paths,
         "timings_seconds": &timings,
         "cpu_seconds": &cpu,
+        "memory_mb": &memory,
+        "view_sizes": views.iter().map(|v| [v.image.width, v.image.height]).collect::<Vec<_>>(),
         "outputs": {"scene": "scene.xml", "gltf": "scene.glb", "convergence_plot": "convergence.png", "report_html": "report.html"},
     });
     util::write_bytes_atomic(&out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
@@ -704,6 +729,7 @@ fn write_outputs(
         })
         .collect();
     log(&format!("stages (wall/CPU s): {}", stages.join(", ")));
+    log(&format!("peak resident memory {:.0} MB", peak));
     log(&format!(
         "delight: outputs in {} (max region error {:.2} %, re-render noise of that region ±{:.2} %)",
         out.display(),
@@ -781,6 +807,7 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         target_noise: None,
         resolution: "32".into(),
         max_resolution: 4096,
+        max_view_pixels: 0,
         unwrap_all: false,
         update: "fixed".into(),
         rerender_spp: 64,

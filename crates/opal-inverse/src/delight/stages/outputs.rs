@@ -44,7 +44,7 @@ pub(in crate::delight) struct Finished {
 /// The result of the run started at `t_all` (stage clock `total` added).
 pub(in crate::delight) fn assemble(f: Finished, mut timings: Timings, t_all: StageClock) -> DelightResult {
     timings.push("total", t_all.elapsed());
-    let Timings { wall: timings, cpu: cpu_timings } = timings;
+    let Timings { wall: timings, cpu: cpu_timings, memory: memory_mb } = timings;
     let Iterated { iterations, converged, light_paths } = f.iterated;
     DelightResult {
         objects: f.objects,
@@ -56,6 +56,7 @@ pub(in crate::delight) fn assemble(f: Finished, mut timings: Timings, t_all: Sta
         warnings: f.warnings,
         timings,
         cpu_timings,
+        memory_mb,
         light_paths,
     }
 }
