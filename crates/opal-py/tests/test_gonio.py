@@ -95,3 +95,21 @@ def test_bad_input(cli, tmp_path):
         opal.gonio.simulate({"beam": {"incidences_deg": [95]}})
     with pytest.raises(ValueError, match="layout"):
         opal.gonio.simulate(tmp_path / "p.toml", layout="plane")
+
+
+def test_ctrl_c_interrupts_simulation():
+    import _thread
+    import threading
+    import time
+
+    timer = threading.Timer(0.5, _thread.interrupt_main)
+    t0 = time.time()
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            opal.gonio.simulate(PLATE, ndf="ggx:0.15", photons=200_000_000)
+    finally:
+        timer.cancel()
+    assert time.time() - t0 < 60
+    # the next call runs normally
+    assert len(opal.gonio.simulate(PLATE, ndf="ggx:0.15", photons=2000).curves["value"]) > 0
