@@ -3,42 +3,8 @@
 //! Exit codes: 0 success, 1 a check failed (energy violated, fit above its bound),
 //! 2 usage / I-O / bad input. Errors print `error: {cause chain}`.
 
-mod assets;
-mod cmd;
-mod glb;
-mod plate;
-#[allow(dead_code)]
-mod plot;
-mod util;
-
-use clap::{Parser, Subcommand};
-
-/// Opal: recover optical properties of real surfaces by physically based light simulation.
-#[derive(Parser, Debug)]
-#[command(name = "opal", version, about, long_about = None)]
-struct Cli {
-    /// Hide progress bars.
-    #[arg(long, global = true)]
-    quiet: bool,
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Subcommand, Debug)]
-enum Command {
-    /// Recover diffuse albedo textures from multi-view HDR images (de-lighting, method C).
-    Delight(cmd::delight::DelightArgs),
-    /// Run every workflow on data shipped with Opal and write results to `opal-demo/`.
-    Demo(cmd::demo::DemoArgs),
-    /// Fit the micro-facet NDF of a plate's rough face to measured curves; export its BSDF.
-    FitNdf(cmd::fit_ndf::FitNdfArgs),
-    /// Virtual goniophotometer: plate with polished/rough faces, beam, detectors.
-    Gonio(cmd::gonio::GonioArgs),
-    /// Path-trace a Mitsuba 3 XML scene to OpenEXR (+ PNG preview).
-    Render(cmd::render::RenderArgs),
-    /// Energy / reciprocity checks of BRDF lobes and normalisation fitting (method B).
-    Brdf(cmd::brdf::BrdfArgs),
-}
+use clap::Parser;
+use opal_cli::{Cli, Command, cmd, util};
 
 fn main() {
     // `opal delight --resume OUTDIR` runs the saved command line of that output folder

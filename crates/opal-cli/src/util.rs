@@ -24,7 +24,8 @@ pub fn set_quiet(q: bool) {
 /// Set by the first Ctrl-C (SIGINT) or SIGTERM; long runs stop at their next checkpoint.
 static INTERRUPT: std::sync::OnceLock<std::sync::Arc<AtomicBool>> = std::sync::OnceLock::new();
 
-/// The flag [`install_interrupt_handler`] sets on the first signal.
+/// The flag [`install_interrupt_handler`] sets on the first signal (the Python package sets
+/// it on `KeyboardInterrupt` and clears it before each call).
 pub fn interrupt_flag() -> std::sync::Arc<AtomicBool> {
     INTERRUPT.get_or_init(Default::default).clone()
 }
@@ -58,10 +59,26 @@ pub fn install_exit_handler(command: &'static str) {
     });
 }
 
+/// The bar [`progress`] made last (read by the Python package's progress callback).
+static CURRENT: std::sync::Mutex<Option<ProgressBar>> = std::sync::Mutex::new(None);
+
+/// Message, position and length of the progress bar made last, if any (a hidden bar counts
+/// too): what a long command has done so far.
+pub fn current_progress() -> Option<(String, u64, Option<u64>)> {
+    let g = CURRENT.lock().unwrap_or_else(|e| e.into_inner());
+    g.as_ref().map(|pb| (pb.message(), pb.position(), pb.length()))
+}
+
+/// Forgets the bar of [`current_progress`] (before a new command).
+pub fn clear_progress() {
+    *CURRENT.lock().unwrap_or_else(|e| e.into_inner()) = None;
+}
+
 /// A progress bar on stderr with `len` steps; hidden with `--quiet` or when stderr is not a
 /// terminal.
 pub fn progress(len: u64, msg: &str) -> ProgressBar {
     let pb = ProgressBar::new(len);
+    *CURRENT.lock().unwrap_or_else(|e| e.into_inner()) = Some(pb.clone());
     if QUIET.load(Ordering::Relaxed) || !std::io::stderr().is_terminal() {
         pb.set_draw_target(ProgressDrawTarget::hidden());
     }

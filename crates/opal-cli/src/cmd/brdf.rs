@@ -243,7 +243,32 @@ pub fn plot_reports(path: &Path, reports: &[CheckReport]) -> Result<()> {
     save_panels(path, &[full, zoom], (1400, 560))
 }
 
-fn check(a: CheckArgs) -> Result<i32> {
+/// Runs `opal brdf …` without printing: `check` → one report per model (an array),
+/// `fit-norm` → the fit report, `list` → the models (the Python package's entry point).
+pub fn run_json(args: BrdfArgs) -> Result<serde_json::Value> {
+    Ok(match args.cmd {
+        BrdfCommand::Check(a) => {
+            let reports = check_reports(&a)?;
+            serde_json::Value::Array(reports.iter().map(report_json).collect())
+        }
+        BrdfCommand::FitNorm(a) => serde_json::to_value(fit_report(&a)?)?,
+        BrdfCommand::List => serde_json::Value::Array(
+            registry::models()
+                .iter()
+                .map(|m| {
+                    serde_json::json!({
+                        "name": m.name, "plugin": m.plugin, "param": m.param,
+                        "default_range": [m.default_range.0, m.default_range.1],
+                        "description": m.description,
+                    })
+                })
+                .collect(),
+        ),
+    })
+}
+
+/// The reports of `opal brdf check` (one per `--model`).
+fn check_reports(a: &CheckArgs) -> Result<Vec<CheckReport>> {
     let inc = incidence(&a.incidence_deg)?;
     if a.points < 3 || a.incidence_points < 1 {
         bail!("--points must be ≥ 3 and --incidence-points ≥ 1");
@@ -275,6 +300,11 @@ fn check(a: CheckArgs) -> Result<i32> {
     if let Some(p) = &a.plot {
         plot_reports(p, &reports).with_context(|| format!("writing the plot {}", p.display()))?;
     }
+    Ok(reports)
+}
+
+fn check(a: CheckArgs) -> Result<i32> {
+    let reports = check_reports(&a)?;
     if a.json {
         let v: Vec<serde_json::Value> = reports.iter().map(report_json).collect();
         let out = if v.len() == 1 { v.into_iter().next().unwrap() } else { serde_json::Value::Array(v) };
@@ -301,7 +331,8 @@ fn check(a: CheckArgs) -> Result<i32> {
     Ok(if failed { 1 } else { 0 })
 }
 
-fn fit(a: FitArgs) -> Result<i32> {
+/// The report of `opal brdf fit-norm`.
+fn fit_report(a: &FitArgs) -> Result<FitReport> {
     let spec = ModelSpec::new(&a.model)?;
     let form = NormExpr::parse(&a.form)?;
     let range = param_range(&spec, a.param.as_deref())?;
@@ -311,8 +342,11 @@ fn fit(a: FitArgs) -> Result<i32> {
         start: (a.a, a.b),
         ..Default::default()
     };
-    let r = brdf_energy::fit_norm(&spec, &form, &cfg)
-        .with_context(|| format!("fitting {} for '{}'", a.form, a.model))?;
+    brdf_energy::fit_norm(&spec, &form, &cfg).with_context(|| format!("fitting {} for '{}'", a.form, a.model))
+}
+
+fn fit(a: FitArgs) -> Result<i32> {
+    let r = fit_report(&a)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {

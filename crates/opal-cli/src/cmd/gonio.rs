@@ -202,6 +202,60 @@ pub fn simulate(cfg: &Config) -> Result<(Gonio, GonioResult, f64)> {
     Ok((gonio, res, t0.elapsed().as_secs_f64()))
 }
 
+/// The detector curves as columns (the CSV's, at full precision): incidence_deg, side,
+/// detector_deg, value, value_stderr, bsdf, n_hits, and detector_azimuth_deg for the
+/// hemisphere layout.
+pub fn curves_json(gonio: &Gonio, res: &GonioResult) -> serde_json::Value {
+    let dets = gonio.detectors().list();
+    let (mut inc, mut side, mut det, mut az) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut value, mut se, mut bsdf, mut hits) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for r in &res.incidences {
+        for (k, d) in dets.iter().enumerate() {
+            inc.push(r.incidence.to_degrees());
+            side.push(d.side.label());
+            det.push(d.angle_deg);
+            az.push(d.azimuth_deg);
+            value.push(r.value[k]);
+            se.push(r.value_stderr[k]);
+            bsdf.push(r.bsdf[k]);
+            hits.push(r.hits[k]);
+        }
+    }
+    let mut j = serde_json::json!({
+        "incidence_deg": inc, "side": side, "detector_deg": det,
+        "value": value, "value_stderr": se, "bsdf": bsdf, "n_hits": hits,
+    });
+    if gonio.detectors().is_hemisphere() {
+        j["detector_azimuth_deg"] = serde_json::json!(az);
+    }
+    j
+}
+
+/// Runs `opal gonio simulate` without writing files (the Python package's entry point):
+/// `{"curves": curves_json, "totals": totals_json}`; `cancel` stops the run early.
+pub fn simulate_json(
+    args: GonioArgs,
+    cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+) -> Result<serde_json::Value> {
+    let GonioCmd::Simulate(a) = args.cmd;
+    let file = match &a.plate {
+        Some(p) => read_plate_file(p)?,
+        None => PlateFile::default(),
+    };
+    let cfg = build_config(&file, &a.overrides())?;
+    let gonio = Gonio::new(cfg.setup.clone()).map_err(|e| anyhow::anyhow!("{e}"))?.with_cancel(cancel);
+    let batches = cfg.setup.photons.div_ceil(opal::gonio::BATCH) * cfg.setup.incidences.len() as u64;
+    let pb = progress(batches, "gonio");
+    let t0 = std::time::Instant::now();
+    let res = gonio.run_plate_with_progress(&cfg.plate, &|| pb.inc(1))?;
+    pb.finish_and_clear();
+    let secs = t0.elapsed().as_secs_f64();
+    if let Some(p) = &a.plot {
+        write_plot(p, &gonio, &res, "opal gonio")?;
+    }
+    Ok(serde_json::json!({"curves": curves_json(&gonio, &res), "totals": totals_json(&res, secs)}))
+}
+
 /// `opal gonio …`.
 pub fn run(args: GonioArgs) -> Result<i32> {
     match args.cmd {

@@ -96,6 +96,32 @@ pub fn check_camera_sees_something(scene: &Scene, cam: usize) -> Result<()> {
     bail!("sensor '{}' sees no geometry (checked a {n}×{n} grid of rays): check its to_world and fov", c.id)
 }
 
+/// Refuses `--spp 0`.
+pub fn check_spp(spp: Option<u32>) -> Result<()> {
+    if spp == Some(0) {
+        bail!("--spp must be at least 1");
+    }
+    Ok(())
+}
+
+/// The path tracer's settings of `opal render`: `spp` defaults to the sensor's sampler, else
+/// 64; `max_depth` to the scene's integrator.
+pub fn path_settings(
+    scene: &Scene,
+    cam: usize,
+    spp: Option<u32>,
+    max_depth: Option<i32>,
+    seed: u64,
+) -> PathSettings {
+    PathSettings {
+        spp: spp.or(scene.cameras[cam].spp).unwrap_or(64),
+        max_depth: max_depth.unwrap_or(scene.integrator.max_depth),
+        rr_depth: scene.integrator.rr_depth,
+        hide_emitters: scene.integrator.hide_emitters,
+        seed,
+    }
+}
+
 /// Writes the EXR (and optional PNG / stderr EXR) of a render atomically.
 pub fn write_outputs(
     out: &RenderOutput,
@@ -122,9 +148,7 @@ pub fn run(a: RenderArgs) -> Result<i32> {
     for o in [Some(&a.output), a.png.as_ref(), a.stderr.as_ref()].into_iter().flatten() {
         util::ensure_not_input(o, &[&a.scene])?;
     }
-    if a.spp == Some(0) {
-        bail!("--spp must be at least 1");
-    }
+    check_spp(a.spp)?;
     let scene = load_scene(&a.scene, &a.define)?;
     let cam = pick_sensor(&scene, &a.sensor)?;
     check_camera_sees_something(&scene, cam)?;
@@ -132,13 +156,7 @@ pub fn run(a: RenderArgs) -> Result<i32> {
         eprintln!("warning: the scene has no emitter: the image will be black");
     }
     let c = &scene.cameras[cam];
-    let settings = PathSettings {
-        spp: a.spp.or(c.spp).unwrap_or(64),
-        max_depth: a.max_depth.unwrap_or(scene.integrator.max_depth),
-        rr_depth: scene.integrator.rr_depth,
-        hide_emitters: scene.integrator.hide_emitters,
-        seed: a.seed,
-    };
+    let settings = path_settings(&scene, cam, a.spp, a.max_depth, a.seed);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
     let pb = util::progress(c.height as u64, "render");
     let t0 = Instant::now();

@@ -279,6 +279,8 @@ pub struct Gonio {
     dets: Detectors,
     force_general: bool,
     simd: bool,
+    /// Set from outside to stop a run early (see [`Gonio::with_cancel`]).
+    cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 #[derive(Clone)]
@@ -383,7 +385,18 @@ impl Gonio {
             return Err(crate::Error::invalid("photons", "must be > 0"));
         }
         let dets = Detectors::new(&setup.detectors, setup.beam.azimuth)?;
-        Ok(Gonio { setup, dets, force_general: false, simd: true })
+        Ok(Gonio { setup, dets, force_general: false, simd: true, cancel: None })
+    }
+
+    /// A flag that stops a run early when set (e.g. by Ctrl-C): the run returns
+    /// [`crate::Error::Interrupted`] at its next group of batches. Unset, results are unchanged.
+    pub fn with_cancel(mut self, cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>) -> Self {
+        self.cancel = cancel;
+        self
+    }
+
+    fn cancelled(&self) -> bool {
+        self.cancel.as_ref().is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed))
     }
 
     /// Forces the general photon loop even where the fast one applies (for comparisons and
@@ -437,6 +450,11 @@ impl Gonio {
         let mut out = Vec::with_capacity(self.setup.incidences.len());
         for (ii, &inc) in self.setup.incidences.iter().enumerate() {
             out.push(self.run_incidence(plate, &front, &back, fast.as_ref(), kernels, ii as u64, inc, tick));
+            if self.cancelled() {
+                return Err(crate::Error::Interrupted {
+                    kept: "nothing (the simulation was not finished)".into(),
+                });
+            }
         }
         Ok(GonioResult { incidences: out, photons: self.setup.photons })
     }
@@ -461,6 +479,10 @@ impl Gonio {
         let mut total = Acc::new(ndet);
         let mut g0 = 0;
         while g0 < nb {
+            if self.cancelled() {
+                // the caller discards this incidence and returns `Interrupted`
+                break;
+            }
             let g1 = (g0 + group).min(nb);
             let accs: Vec<Acc> = (g0..g1)
                 .into_par_iter()

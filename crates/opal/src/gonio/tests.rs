@@ -77,6 +77,24 @@ fn same_result_for_any_thread_count() {
     }
 }
 
+/// An unset cancel flag changes nothing; a set one stops the run with `Interrupted`.
+#[test]
+fn cancel_flag_stops_and_unset_changes_nothing() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let g = Gonio::new(setup(&[0.0, 45.0], 2 * BATCH + 7, 0.5)).unwrap();
+    let p = plate(Face::Polished, Face::Rough { ndf: Ndfs::ggx(0.3), scattering: Scattering::Single }, 0.05);
+    let flag = Arc::new(AtomicBool::new(false));
+    let gc = g.clone().with_cancel(Some(flag.clone()));
+    let (a, b) = (g.run_plate(&p).unwrap(), gc.run_plate(&p).unwrap());
+    for (x, y) in a.incidences.iter().zip(&b.incidences) {
+        assert_eq!(x.value, y.value);
+        assert_eq!((x.r, x.t, x.lost), (y.r, y.t, y.lost));
+    }
+    flag.store(true, Ordering::Relaxed);
+    assert!(matches!(gc.run_plate(&p), Err(crate::Error::Interrupted { .. })));
+}
+
 #[test]
 fn energy_bookkeeping_and_multiple_scattering_keeps_energy() {
     let g = Gonio::new(setup(&[0.0, 30.0, 60.0, 75.0], 40_000, 0.5)).unwrap();

@@ -341,6 +341,20 @@ impl RowPlan {
 
 /// Renders camera `cam` of the scene. `on_row` is called after each finished row (progress).
 pub fn render(scene: &Scene, cam: usize, s: &PathSettings, on_row: &(dyn Fn() + Sync)) -> RenderOutput {
+    render_cancellable(scene, cam, s, on_row, None).expect("a render without a cancel flag finishes")
+}
+
+/// [`render`] that stops early once `cancel` is set: rows not yet started are skipped and the
+/// result is [`crate::error::Error::Interrupted`]. Without a cancel request the image is the
+/// same, bit for bit, as [`render`]'s (each row depends only on its own index and the seed).
+pub fn render_cancellable(
+    scene: &Scene,
+    cam: usize,
+    s: &PathSettings,
+    on_row: &(dyn Fn() + Sync),
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> crate::error::Result<RenderOutput> {
+    let cancelled = || cancel.is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed));
     let camera = &scene.cameras[cam];
     let (w, h) = (camera.width, camera.height);
     let plan = RowPlan::choose(scene);
@@ -349,11 +363,19 @@ pub fn render(scene: &Scene, cam: usize, s: &PathSettings, on_row: &(dyn Fn() + 
         .into_par_iter()
         .map(|y| {
             let mut row = Row::new(w);
+            if cancelled() {
+                return row;
+            }
             plan.render(scene, tables.as_ref(), cam, y, s, &mut row);
             on_row();
             row
         })
         .collect();
+    if cancelled() {
+        return Err(crate::error::Error::Interrupted {
+            kept: "nothing (the render was not finished)".into(),
+        });
+    }
     let mut image = Image::new(w, h);
     let mut stderr = Image::new(w, h);
     let mut nonfinite = 0;
@@ -362,7 +384,7 @@ pub fn render(scene: &Scene, cam: usize, s: &PathSettings, on_row: &(dyn Fn() + 
         stderr.data[y * w..(y + 1) * w].copy_from_slice(&row.err);
         nonfinite += row.bad;
     }
-    RenderOutput { image, stderr, nonfinite, samples: (w * h) as u64 * s.spp as u64 }
+    Ok(RenderOutput { image, stderr, nonfinite, samples: (w * h) as u64 * s.spp as u64 })
 }
 
 #[cfg(test)]

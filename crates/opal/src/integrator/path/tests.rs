@@ -115,3 +115,22 @@ fn wide_shading_only_on_diffuse_scenes() {
     desc.shapes[0].bsdf = crate::scene::desc::BsdfDesc::Lobe(crate::bsdf::Bxdfs::Phong(phong));
     assert!(wavefront::wide_kernel(&Scene::build(&desc).unwrap(), Kernel::Portable).is_none());
 }
+
+/// [`render_cancellable`] without a request gives [`render`]'s image bit for bit; with the flag
+/// set it stops with `Interrupted` instead of returning a partial image.
+#[test]
+fn cancellable_render_matches_and_stops() {
+    use std::sync::atomic::AtomicBool;
+    let xml = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cbox/scene.xml");
+    let scene = Scene::build(&load_mitsuba_xml(&xml, &[]).unwrap()).unwrap();
+    let s = PathSettings { spp: 2, max_depth: 6, rr_depth: 5, hide_emitters: false, seed: 3 };
+    let a = render(&scene, 0, &s, &|| {});
+    let flag = AtomicBool::new(false);
+    let b = render_cancellable(&scene, 0, &s, &|| {}, Some(&flag)).unwrap();
+    let px = |o: &RenderOutput| o.image.data.iter().flat_map(|p| p.0.map(f32::to_bits)).collect::<Vec<_>>();
+    assert_eq!(px(&a), px(&b));
+    assert!(a.image.data.iter().any(|p| !p.is_black()));
+    flag.store(true, std::sync::atomic::Ordering::Relaxed);
+    let c = render_cancellable(&scene, 0, &s, &|| {}, Some(&flag));
+    assert!(matches!(c, Err(crate::error::Error::Interrupted { .. })));
+}
