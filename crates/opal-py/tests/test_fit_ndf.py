@@ -79,3 +79,23 @@ def test_bad_input(measured, cli, tmp_path):
         opal.fit_ndf({"incidence_deg": [0], "side": ["T"], "detector_deg": [0, 1], "value": [1.0]})
     with pytest.raises(ValueError):
         opal.fit_ndf([])
+
+
+def test_ctrl_c_interrupts_a_fit(measured):
+    """A fit of 20 M photons per simulation (minutes) stops within seconds of Ctrl-C."""
+    import _thread
+    import threading
+    import time
+
+    plate, csv = measured
+    timer = threading.Timer(1.0, _thread.interrupt_main)
+    t0 = time.time()
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            opal.fit_ndf(csv, plate=plate, entry="rough", family="auto", photons=20_000_000, no_render=True)
+    finally:
+        timer.cancel()
+    assert time.time() - t0 < 60
+    # the next call runs normally
+    assert opal.fit_ndf(csv, plate=plate, **FIT).family == "ggx"

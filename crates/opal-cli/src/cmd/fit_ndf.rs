@@ -237,7 +237,11 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
         rel_error,
         min_snr: (a.min_snr > 0.0).then_some(a.min_snr),
     };
-    let problem = Problem::new(measured, setup).map_err(|e| anyhow!("{e}"))?;
+    // the flag is set only where a caller stops the run from outside (the Python package on
+    // Ctrl-C); the `opal` binary's own Ctrl-C handler exits at once
+    let problem = Problem::new(measured, setup)
+        .map_err(|e| anyhow!("{e}"))?
+        .with_cancel(Some(crate::util::interrupt_flag()));
     Ok((problem, opts))
 }
 

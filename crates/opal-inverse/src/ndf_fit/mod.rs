@@ -210,6 +210,8 @@ pub struct Problem {
     group_of: Vec<[Option<usize>; 2]>,
     /// Simulations run: (coarse, at `photons` or other).
     evals: Mutex<(u64, u64)>,
+    /// Stops every simulation early when set ([`Problem::with_cancel`]).
+    cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 /// Quality of one simulation against the measurement.
@@ -394,7 +396,18 @@ impl Problem {
             groups,
             group_of,
             evals: Mutex::new((0, 0)),
+            cancel: None,
         })
+    }
+
+    /// A flag that stops the fit early when set (e.g. by Ctrl-C): every simulation then returns
+    /// [`opal::Error::Interrupted`] at its next group of batches ([`Gonio::with_cancel`]), which
+    /// the fit passes on. Unset, results are unchanged.
+    pub fn with_cancel(mut self, cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>) -> Self {
+        self.gonio = self.gonio.with_cancel(cancel.clone());
+        self.gonio_coarse = self.gonio_coarse.map(|g| g.with_cancel(cancel.clone()));
+        self.cancel = cancel;
+        self
     }
 
     /// The simulator.
@@ -476,7 +489,7 @@ impl Problem {
         let mut s = self.gonio.setup().clone();
         s.seed = seed;
         s.photons = photons;
-        Gonio::new(s)?.run_plate(plate)
+        Gonio::new(s)?.with_cancel(self.cancel.clone()).run_plate(plate)
     }
 
     fn stage_photons(&self, stage: Stage) -> u64 {

@@ -269,3 +269,22 @@ fn scale_settings_are_checked() {
     assert_eq!(ScaleMode::parse("per-incidence"), Some(ScaleMode::PerIncidence));
     assert_eq!(ScaleMode::parse("relative"), None);
 }
+
+/// A set cancel flag stops the whole fit with `Interrupted` (every simulation checks it); an
+/// unset one gives the same fit as no flag at all.
+#[test]
+fn cancel_flag_stops_the_fit_and_unset_changes_nothing() {
+    let opts = FitOptions { family: Some(Family::Ggx), ..Default::default() };
+    let (p, _) = scaled_problem(mode(ScaleMode::Absolute), 1.0);
+    let plain = fit(&p, &opts).unwrap();
+    let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let (p, _) = scaled_problem(mode(ScaleMode::Absolute), 1.0);
+    let p = p.with_cancel(Some(flag.clone()));
+    let unset = fit(&p, &opts).unwrap();
+    let (a, b) = (&plain.candidates[plain.best].fit, &unset.candidates[unset.best].fit);
+    assert_eq!(a.model, b.model);
+    assert_eq!(a.objective.to_bits(), b.objective.to_bits());
+    flag.store(true, std::sync::atomic::Ordering::SeqCst);
+    let e = fit(&p, &opts).unwrap_err();
+    assert!(matches!(e, opal::Error::Interrupted { .. }), "{e}");
+}

@@ -127,46 +127,19 @@ pub const PLUGINS: &[&str] =
 pub const ROUGHDIELECTRIC_PARAMS: &[&str] =
     &["distribution", "alpha", "int_ior", "ext_ior", "scattering", "shadowing"];
 
-/// Named refractive indices accepted for `int_ior` / `ext_ior` (Mitsuba's table).
-pub const NAMED_IORS: &[(&str, f64)] = &[
-    ("vacuum", 1.0),
-    ("helium", 1.00004),
-    ("hydrogen", 1.00013),
-    ("air", 1.000277),
-    ("carbon dioxide", 1.00045),
-    ("water", 1.333),
-    ("acetone", 1.36),
-    ("ethanol", 1.361),
-    ("carbon tetrachloride", 1.461),
-    ("glycerol", 1.4729),
-    ("benzene", 1.501),
-    ("silicone oil", 1.52045),
-    ("bromine", 1.661),
-    ("water ice", 1.31),
-    ("fused quartz", 1.458),
-    ("pyrex", 1.47),
-    ("acrylic glass", 1.49),
-    ("polypropylene", 1.49),
-    ("bk7", 1.5046),
-    ("sodium chloride", 1.544),
-    ("amber", 1.55),
-    ("pet", 1.575),
-    ("diamond", 2.419),
-];
-
 impl PluginParams {
-    /// A refractive index: a float > 0 or a name of [`NAMED_IORS`].
+    /// A refractive index: a float > 0 or a name of Mitsuba's table ([`crate::bsdf::ior::dielectric_ior`]).
     fn ior(&self, name: &str, default: f64) -> Result<f64> {
         let v = match self.values.get(name) {
             None => default,
             Some(ParamValue::Float(v)) => *v,
             Some(ParamValue::Str(s)) => {
-                NAMED_IORS.iter().find(|(n, _)| *n == s.as_str()).map(|p| p.1).ok_or_else(|| {
+                crate::bsdf::ior::dielectric_ior(s).map(f64::from).ok_or_else(|| {
                     Error::invalid(
                         self.what(name),
                         format!(
                             "unknown material \"{s}\"; give a number or one of {}",
-                            NAMED_IORS.iter().map(|p| p.0).collect::<Vec<_>>().join(", ")
+                            crate::bsdf::ior::dielectric_names().join(", ")
                         ),
                     )
                 })?
