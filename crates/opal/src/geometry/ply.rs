@@ -338,6 +338,9 @@ pub fn read_ply(path: &Path) -> Result<TriangleMesh> {
                 faces.push((idx, body.line()));
                 let _ = fi;
             }
+        } else if el.props.is_empty() && body.fmt != Format::Ascii {
+            // binary rows of no properties are empty: nothing to read or skip (a declared count
+            // of 10^13 such rows must not be looped over; fuzz target `ply` found that hang)
         } else {
             for _ in 0..el.count {
                 body.next_row()?;
