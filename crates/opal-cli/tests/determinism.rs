@@ -16,9 +16,12 @@ fn opal() -> Command {
     Command::new(env!("CARGO_BIN_EXE_opal"))
 }
 
-/// JSON keys that hold wall or CPU times (they differ between runs by nature).
+/// JSON keys that hold wall or CPU times or measured memory (they differ between runs by
+/// nature).
 fn is_timing_key(k: &str) -> bool {
     k.contains("seconds")
+        || k.contains("memory_mb")
+        || k.contains("rss")
         || k.ends_with("_s")
         || k.contains("timing")
         || k.contains("elapsed")
