@@ -114,10 +114,10 @@ fn bad_inputs_exit_2_with_clear_messages() {
     // unknown plugin
     std::fs::write(
         d.join("plugin.xml"),
-        "<scene version=\"3.0.0\">\n<bsdf type=\"roughplastic\" id=\"x\"/>\n</scene>\n",
+        "<scene version=\"3.0.0\">\n<bsdf type=\"principled\" id=\"x\"/>\n</scene>\n",
     )
     .unwrap();
-    expect_bad(d, &d.join("plugin.xml"), &["plugin.xml", "roughplastic"]);
+    expect_bad(d, &d.join("plugin.xml"), &["plugin.xml", "principled"]);
     // mesh with NaN
     std::fs::write(d.join("nan.obj"), "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n").unwrap();
     let s = write_scene(d, r#"<shape type="obj"><string name="filename" value="nan.obj"/></shape>"#, "0.3");
