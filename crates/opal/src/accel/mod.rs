@@ -124,7 +124,7 @@ impl Accel {
             Accel::Split(s) => s.intersect8_many(rays, hits),
             _ => {
                 for (r, h) in rays.iter().zip(hits.iter_mut()) {
-                    *h = if r.tmax.iter().any(|&t| t > 0.0) { self.intersect8(r) } else { PacketHits::NONE };
+                    *h = if r.any_active() { self.intersect8(r) } else { PacketHits::NONE };
                 }
             }
         }
@@ -138,7 +138,7 @@ impl Accel {
             Accel::Split(s) => s.occluded8_many(rays, blocked),
             _ => {
                 for (r, b) in rays.iter().zip(blocked.iter_mut()) {
-                    *b = if r.tmax.iter().any(|&t| t > 0.0) { self.occluded8(r) } else { 0 };
+                    *b = if r.any_active() { self.occluded8(r) } else { 0 };
                 }
             }
         }

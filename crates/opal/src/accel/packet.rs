@@ -52,6 +52,12 @@ pub struct RayPacket {
 }
 
 impl RayPacket {
+    /// Whether some lane is active (`tmax > 0`).
+    #[inline]
+    pub fn any_active(&self) -> bool {
+        self.tmax.iter().any(|&t| t > 0.0)
+    }
+
     /// The ray of lane `l`.
     pub fn ray(&self, l: usize) -> Ray {
         Ray {

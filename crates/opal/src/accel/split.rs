@@ -205,7 +205,7 @@ impl SplitAccel {
         assert_eq!(rays.len(), hits.len(), "one hit record per packet");
         let mut queue = Gather::default();
         for j in 0..rays.len() {
-            if !rays[j].tmax.iter().any(|&t| t > 0.0) {
+            if !rays[j].any_active() {
                 hits[j] = PacketHits::NONE;
                 continue;
             }
@@ -237,7 +237,7 @@ impl SplitAccel {
         assert_eq!(rays.len(), blocked.len(), "one mask per packet");
         let mut queue = Gather::default();
         for j in 0..rays.len() {
-            if !rays[j].tmax.iter().any(|&t| t > 0.0) {
+            if !rays[j].any_active() {
                 blocked[j] = 0;
                 continue;
             }

@@ -35,10 +35,10 @@ use std::sync::Arc;
 /// Size of the transmittance table (Mitsuba's `MI_ROUGH_TRANSMITTANCE_RES`).
 pub const TRANSMITTANCE_RES: usize = 64;
 
-/// Single-scattering directional reflectance of a rough dielectric interface of relative index
-/// `eta` seen from a direction at `cos θ = mu` (above the interface): the midpoint rule with
-/// `n × n` points over the visible-normal sample square of `∫ F(w·m) G1(wr, m) D_w(m) dm`.
-pub fn rough_reflectance(ndf: &Ndfs, mu: f32, eta: f32, n: usize) -> f32 {
+/// The midpoint rule with `n × n` points over the visible-normal sample square of the
+/// direction at `cos θ = mu` (above the interface): the mean of `term(w, m, w·m)` over the
+/// visible normals `m` with `w·m > 0` (`None` counts as 0).
+fn vndf_midpoint(ndf: &Ndfs, mu: f32, n: usize, term: impl Fn(Vec3, Vec3, f32) -> Option<f32>) -> f32 {
     let w = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
     let mut acc = 0.0f64;
     for i in 0..n {
@@ -49,41 +49,32 @@ pub fn rough_reflectance(ndf: &Ndfs, mu: f32, eta: f32, n: usize) -> f32 {
             if c <= 0.0 {
                 continue;
             }
-            let r = reflect(w, m);
-            if r.z <= 0.0 {
-                continue;
+            if let Some(v) = term(w, m, c) {
+                acc += v as f64;
             }
-            let f = fresnel_dielectric(c, eta).0;
-            acc += (f * ndf.g1_mitsuba(r, m)) as f64;
         }
     }
     (acc / (n * n) as f64) as f32
 }
 
+/// Single-scattering directional reflectance of a rough dielectric interface of relative index
+/// `eta` seen from a direction at `cos θ = mu` (above the interface): [`vndf_midpoint`] of
+/// `F(w·m) G1(wr, m)`.
+pub fn rough_reflectance(ndf: &Ndfs, mu: f32, eta: f32, n: usize) -> f32 {
+    vndf_midpoint(ndf, mu, n, |w, m, c| {
+        let r = reflect(w, m);
+        (r.z > 0.0).then(|| fresnel_dielectric(c, eta).0 * ndf.g1_mitsuba(r, m))
+    })
+}
+
 /// Single-scattering directional transmittance of a rough dielectric interface of relative
-/// index `eta` for light arriving at `cos θ = mu` from above: the midpoint rule with `n × n`
-/// points over the visible-normal sample square of `∫ (1 − F(w·m)) G1(wt, m) D_w(m) dm`, `wt`
-/// the refracted direction (below the interface).
+/// index `eta` for light arriving at `cos θ = mu` from above: [`vndf_midpoint`] of
+/// `(1 − F(w·m)) G1(wt, m)`, `wt` the refracted direction (below the interface).
 pub fn rough_transmittance(ndf: &Ndfs, mu: f32, eta: f32, n: usize) -> f32 {
-    let w = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
-    let mut acc = 0.0f64;
-    for i in 0..n {
-        for j in 0..n {
-            let u = Vec2::new((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32);
-            let m = ndf.sample_visible(w, u);
-            let c = w.dot(m);
-            if c <= 0.0 {
-                continue;
-            }
-            let Some(t) = refract(w, m, eta) else { continue };
-            if t.z >= 0.0 {
-                continue;
-            }
-            let f = fresnel_dielectric(c, eta).0;
-            acc += ((1.0 - f) * ndf.g1_mitsuba(t, m)) as f64;
-        }
-    }
-    (acc / (n * n) as f64) as f32
+    vndf_midpoint(ndf, mu, n, |w, m, c| {
+        let t = refract(w, m, eta)?;
+        (t.z < 0.0).then(|| (1.0 - fresnel_dielectric(c, eta).0) * ndf.g1_mitsuba(t, m))
+    })
 }
 
 /// Rough plastic (diffuse base, rough dielectric coating).
