@@ -133,7 +133,12 @@ pub(in crate::delight) fn iterate(
             // is measured in the first pass only; the method uses the indirect map
             direct: k == 1,
         };
-        let out = light_tracer::trace(&rscene, &targets, &lt, &|| {});
+        // Ctrl-C during the pass stops it within a batch; the pass is dropped and the last
+        // finished iteration (already checkpointed) is what is kept
+        let Some(out) = light_tracer::trace_cancellable(&rscene, &targets, &lt, &|| {}, s.cancel.as_deref())
+        else {
+            return Err(Error::Interrupted { kept: kept(s, k - 1) });
+        };
         let (w, c) = c0.elapsed();
         lt_wall += w;
         lt_cpu += c;

@@ -206,20 +206,44 @@ pub fn trace(
     s: &LightTraceSettings,
     on_batch: &(dyn Fn() + Sync),
 ) -> LightTraceOutput {
+    trace_cancellable(scene, targets, s, on_batch, None).expect("a pass without a cancel flag finishes")
+}
+
+/// [`trace`] that stops early when `cancel` becomes `true`: the workers look at the flag before
+/// each batch, so the pass ends within one batch per worker and returns `None` (the partial
+/// sums are dropped: a pass is all or nothing). With the flag never set, the result is [`trace`]'s,
+/// bit for bit.
+pub fn trace_cancellable(
+    scene: &Scene,
+    targets: &[Option<IrradianceTarget>],
+    s: &LightTraceSettings,
+    on_batch: &(dyn Fn() + Sync),
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Option<LightTraceOutput> {
     let Some(sampler) = scene.light_sampler() else {
-        return LightTraceOutput { maps: empty_maps(targets), paths: 0, nonfinite: 0 };
+        return Some(LightTraceOutput { maps: empty_maps(targets), paths: 0, nonfinite: 0 });
     };
     let mut shift = 0;
     loop {
         let fp = FixedPoint::new(scene, targets, s.paths, shift);
-        match trace_fixed(scene, sampler, targets, s, &fp, on_batch, Engine::Auto) {
-            Ok(out) => return out,
+        match trace_fixed(scene, sampler, targets, s, &fp, on_batch, Engine::Auto, cancel) {
+            Ok(out) => return Some(out),
+            Err(Stop::Cancelled) => return None,
             // Some shape's deposits summed to ≥ 2⁶³ units: a texel may have overflowed. Trace
             // again with a coarser unit (never seen in practice; the result stays deterministic
             // since the decision depends on exact integer sums only).
-            Err(bits) => shift -= bits,
+            Err(Stop::Rescale(bits)) => shift -= bits,
         }
     }
+}
+
+/// Why [`trace_fixed`] gave no maps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stop {
+    /// The fixed-point scale must shrink by `2^bits`.
+    Rescale(i32),
+    /// The cancel flag was set.
+    Cancelled,
 }
 
 /// How the paths are traced (tests compare the three; results are identical).
@@ -237,7 +261,9 @@ enum Engine {
     Scalar,
 }
 
-/// One pass at a fixed-point scale; `Err(bits)` when the scale must shrink by `2^bits`.
+/// One pass at a fixed-point scale; `Err(Stop::Rescale(bits))` when the scale must shrink by
+/// `2^bits`, `Err(Stop::Cancelled)` when `cancel` was set during the pass.
+#[allow(clippy::too_many_arguments)]
 fn trace_fixed(
     scene: &Scene,
     sampler: &crate::light::LightSampler,
@@ -246,7 +272,8 @@ fn trace_fixed(
     fp: &FixedPoint,
     on_batch: &(dyn Fn() + Sync),
     engine: Engine,
-) -> Result<LightTraceOutput, i32> {
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<LightTraceOutput, Stop> {
     use std::sync::atomic::{AtomicU64, Ordering};
     let batch = s.batch_size.max(1);
     let n_batches = s.paths.div_ceil(batch);
@@ -273,6 +300,9 @@ fn trace_fixed(
             let mut sink = Sink::new(empty_acc(targets, s.direct));
             let mut bad = 0u64;
             loop {
+                if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+                    break;
+                }
                 let b = next.fetch_add(1, Ordering::Relaxed);
                 if b >= n_batches {
                     break;
@@ -291,6 +321,9 @@ fn trace_fixed(
             (sink.finish(), bad)
         })
         .collect();
+    if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+        return Err(Stop::Cancelled);
+    }
     let nonfinite = results.iter().map(|r| r.1).sum();
     let mut accs: Vec<Acc> = results.into_iter().map(|r| r.0).collect();
     // overflow check: the exact sum of |units| of a shape bounds each of its texels' sums
@@ -298,7 +331,7 @@ fn trace_fixed(
         let total: u128 = accs.iter().filter_map(|a| a[k].as_ref()).map(|m| m.total).sum();
         if total >= 1u128 << 63 {
             let bits = (128 - total.leading_zeros()) as i32 - 62;
-            return Err(bits.max(1));
+            return Err(Stop::Rescale(bits.max(1)));
         }
     }
     // reduce: wrapping integer sums (exact since no texel's true sum reaches 2⁶³), then scale
