@@ -979,6 +979,18 @@ fn exr_with_an_absurd_data_window_is_refused_before_allocating() {
     }
 }
 
+/// Fuzz find (`image_exr`, a timeout): a 40 KB EXR whose data window (x from 3 211 264 to 63)
+/// passes the sample limit but whose chunks declare far more bytes than the file holds; the
+/// `exr` crate filled a buffer of the declared size before reading. Refused from the chunk
+/// table, naming the file, before any pixel buffer exists.
+#[test]
+fn exr_whose_chunks_overrun_the_file_is_refused() {
+    let p = data("fuzz/exr_chunk_overruns_file.exr");
+    for e in [read_image(&p).unwrap_err().to_string(), read_exr_channels(&p).unwrap_err().to_string()] {
+        assert!(e.contains("exr_chunk_overruns_file.exr") && e.contains("declares"), "{e}");
+    }
+}
+
 /// CRC-32 (IEEE) of PNG chunks, bit by bit (a test helper for hand-made headers).
 fn png_crc(bytes: &[u8]) -> u32 {
     let mut c = 0xffff_ffffu32;

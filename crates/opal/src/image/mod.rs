@@ -1,5 +1,6 @@
 //! Floating-point RGB images (films, textures, reference renders).
 
+mod exr_chunks;
 pub mod read;
 pub mod write;
 

@@ -137,6 +137,19 @@ pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, 
             ));
         }
     }
+    // each chunk's declared byte count must fit in the file (the crate fills a buffer of that
+    // size before reading it): `exr_chunks`
+    if !meta.headers.iter().any(|h| h.deep) {
+        let parts: Vec<super::exr_chunks::PartLayout> = meta
+            .headers
+            .iter()
+            .map(|h| super::exr_chunks::PartLayout {
+                tiled: matches!(h.blocks, exr::meta::BlockDescription::Tiles(_)),
+                chunks: h.chunk_count,
+            })
+            .collect();
+        super::exr_chunks::check(path, &parts, meta.requirements.has_multiple_layers)?;
+    }
     let img = read()
         .no_deep_data()
         .largest_resolution_level()
