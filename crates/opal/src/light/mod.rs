@@ -161,6 +161,12 @@ impl Light {
         }
     }
 
+    /// True for lights that are a delta in position or direction (point, spot, directional):
+    /// [`Light::sample_li`] returns the same incident light for every sample.
+    pub fn is_delta(&self) -> bool {
+        matches!(self, Light::Point { .. } | Light::Spot(_) | Light::Directional(_))
+    }
+
     /// True for lights infinitely far away (directional, environment).
     pub fn is_infinite(&self) -> bool {
         matches!(self, Light::Directional(_) | Light::Env(_))
