@@ -107,7 +107,7 @@ impl TriangleLight {
 pub struct LightSample {
     /// Unit direction from the reference point towards the light.
     pub wi: Vec3,
-    /// Distance to the sampled point on the light.
+    /// Distance to the sampled point on the light (∞ for directional and environment lights).
     pub dist: f32,
     /// Sampled point on the light.
     pub p: Vec3,
@@ -139,13 +139,16 @@ impl LightSample {
 pub struct EmissionSample {
     /// Emitted ray (origin on the light, unit direction).
     pub ray: Ray,
-    /// Normal at the origin (zero for point lights).
+    /// Normal at the origin (zero for point, spot, directional and environment lights: no
+    /// cosine at the origin, no offset).
     pub n: Vec3,
-    /// Emitted radiance along the ray (point lights: intensity).
+    /// Emitted radiance along the ray (point and spot lights: intensity; directional:
+    /// irradiance; environment: radiance).
     pub le: Spectrum,
-    /// Area density of the origin (point lights: 1).
+    /// Area density of the origin (point and spot lights: 1; directional and environment:
+    /// 1/(πR²) on the disk over the scene's bounding sphere).
     pub pdf_pos: f32,
-    /// Solid-angle density of the direction.
+    /// Solid-angle density of the direction (directional lights: 1, a delta).
     pub pdf_dir: f32,
 }
 
