@@ -349,6 +349,44 @@ fn lights_small_constant_albedos_within_1_percent() {
     assert!(worst < 0.01, "acceptance: constant albedos within 1 %: worst {worst}");
 }
 
+/// Independent data lit by an environment map only: an open courtyard rendered by Mitsuba 3
+/// (`bench/scripts/delight_env_small.py`, committed in tests/data/env_small, 0.3 MB): floor, two
+/// walls, a box and a faceted sphere of constant albedos under a procedural 32 × 16 `envmap`
+/// with a small bright sun, 4 views of 64 × 48 pixels at 2048 spp (median per-pixel relative
+/// standard error 1.2 %; the views also see the sky). The light tracer emits from the disk over
+/// the scene's bounding sphere, the direct irradiance importance-samples the map. Acceptance
+/// bar: every constant albedo within 1 % per channel.
+///
+/// **Not met yet** (2026-11-26, hence ignored): 128² maps, 8 passes — 2 M light paths: worst
+/// 1.01 % (the sphere's blue; back wall blue +0.88 %); 8 M paths: worst 1.61 % (sphere +1.4 to
+/// +1.6 %, back wall blue +0.96 %); 64² maps, 2 M paths: 3.1 % (sphere). The same views
+/// rendered by Opal's own path tracer (2048 spp, 8 M paths) give the same pattern (sphere +1.0
+/// to +1.4 %, back wall blue +0.89 %), so this is a bias of the de-lighting pipeline under an
+/// environment light (candidates: pixels at silhouettes against the sky, the faceted sphere's
+/// atlas), not a difference to Mitsuba.
+#[test]
+#[ignore = "acceptance not met yet: worst 1.0-1.6 % (sphere), see the doc comment"]
+fn env_small_constant_albedos_within_1_percent() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/env_small");
+    let desc = load(&dir.join("scene.xml"));
+    assert_eq!(desc.emitters.len(), 1);
+    let (views, warn) = read_views(&dir.join("transforms.json")).unwrap();
+    assert!(warn.is_empty(), "{warn:?}");
+    let s = DelightSettings {
+        resolution: Some(128),
+        light_paths: LightPaths::Fixed(2_000_000),
+        iterations: 8,
+        tolerance: 0.0,
+        ..Default::default()
+    };
+    let t0 = std::time::Instant::now();
+    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
+    let worst = report(&r, &desc);
+    println!("worst constant-albedo error {:.2} % ({:.1} s)", 100.0 * worst, t0.elapsed().as_secs_f64());
+    assert_eq!(truth_albedos(&desc).len(), 5);
+    assert!(worst < 0.01, "acceptance: constant albedos within 1 %: worst {worst}");
+}
+
 /// Splits every triangle of `m` into four at its edge midpoints (normals and UVs interpolated).
 fn subdivide(m: &mut opal::geometry::TriangleMesh) {
     let mut idx = Vec::with_capacity(4 * m.indices.len());

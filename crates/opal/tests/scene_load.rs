@@ -546,8 +546,9 @@ fn error_unknown_plugin_types() {
     assert!(matches!(e, Error::Parse { line: 4, .. }), "{e:?}");
     assert!(s.contains("scene.xml:4:") && s.contains("bsdf type=\"principled\" is not supported"), "{s}");
     assert!(s.contains("diffuse, twosided"), "{s}");
-    let (_, s) = err_body("<emitter type=\"envmap\"><string name=\"filename\" value=\"x.exr\"/></emitter>");
-    assert!(s.contains("scene.xml:2:") && s.contains("emitter type=\"envmap\""), "{s}");
+    let (_, s) =
+        err_body("<emitter type=\"projector\"><string name=\"filename\" value=\"x.exr\"/></emitter>");
+    assert!(s.contains("scene.xml:2:") && s.contains("emitter type=\"projector\""), "{s}");
     // The unsupported plugin is reported before its (here broken) children are read.
     let (_, s) = err_body(
         "<bsdf type=\"principled\" id=\"rp\"><texture type=\"bitmap\" name=\"base_color\">\
@@ -1198,4 +1199,87 @@ fn ply_with_a_huge_count_of_empty_rows_does_not_hang() {
     if let Err(e) = r {
         assert!(e.to_string().contains("ply_empty_element_huge_count.ply"), "{e}");
     }
+}
+
+/// `constant`, `envmap`, `spot`, `directional`: parameters, Mitsuba's defaults, the built
+/// lights, and the error cases.
+#[test]
+fn environment_spot_and_directional_emitters() {
+    use opal::light::Light;
+    let d = ok(r#"<emitter type="constant"/>
+        <emitter type="constant"><rgb name="radiance" value="0.5, 1, 2"/></emitter>
+        <emitter type="spot"/>
+        <emitter type="spot"><float name="cutoff_angle" value="40"/><float name="beam_width" value="10"/>
+            <rgb name="intensity" value="3"/>
+            <transform name="to_world"><lookat origin="1, 2, 3" target="1, 0, 3" up="0, 0, 1"/></transform></emitter>
+        <emitter type="directional"/>
+        <emitter type="directional"><vector name="direction" value="0, -2, 0"/><float name="irradiance" value="4"/></emitter>
+        <emitter type="directional"><transform name="to_world"><rotate x="1" angle="90"/></transform></emitter>"#);
+    let e = &d.emitters;
+    assert!(matches!(e[0], EmitterDesc::Constant { radiance } if radiance == Spectrum::ONE));
+    assert!(matches!(e[1], EmitterDesc::Constant { radiance } if radiance == Spectrum::rgb(0.5, 1.0, 2.0)));
+    assert!(matches!(e[2], EmitterDesc::Spot { cutoff_deg, beam_width_deg, intensity, ref texture, .. }
+            if cutoff_deg == 20.0 && beam_width_deg == 15.0 && intensity == Spectrum::ONE && texture.is_none()));
+    let EmitterDesc::Spot { to_world, cutoff_deg, beam_width_deg, .. } = &e[3] else { panic!("{:?}", e[3]) };
+    assert_eq!((*cutoff_deg, *beam_width_deg), (40.0, 10.0));
+    assert!(close(to_world.transform_point3(Vec3::ZERO), Vec3::new(1.0, 2.0, 3.0), 1e-6));
+    assert!(matches!(e[4], EmitterDesc::Directional { direction, .. } if direction == Vec3::Z));
+    assert!(
+        matches!(e[5], EmitterDesc::Directional { direction, irradiance } if direction == -Vec3::Y && irradiance == Spectrum::splat(4.0))
+    );
+    let EmitterDesc::Directional { direction, .. } = e[6] else { panic!() };
+    assert!(close(direction, -Vec3::Y, 1e-6), "{direction}");
+    // built: the spot shines down from (1, 2, 3), full intensity on its axis
+    let scene = opal::scene::Scene::build(&d).unwrap();
+    let Light::Spot(sp) = &scene.lights[3] else { panic!() };
+    assert!(close(sp.position, Vec3::new(1.0, 2.0, 3.0), 1e-6));
+    assert_eq!(sp.intensity(-Vec3::Y), Spectrum::splat(3.0));
+    assert!(sp.intensity(Vec3::Y).is_black());
+    assert_eq!(scene.env_lights(), &[0, 1]);
+
+    // envmap: a 4×2 EXR, scale and to_world
+    let dir = tempfile::tempdir().unwrap();
+    let mut img = opal::image::Image::new(4, 2);
+    img.data.iter_mut().enumerate().for_each(|(k, v)| *v = Spectrum::splat(k as f32 + 1.0));
+    opal::image::write::write_exr(&img, std::fs::File::create(dir.path().join("env.exr")).unwrap()).unwrap();
+    let xml = scene_xml(
+        r#"<emitter type="envmap"><string name="filename" value="env.exr"/><float name="scale" value="2"/>
+           <transform name="to_world"><rotate y="1" angle="90"/></transform></emitter>"#,
+    );
+    std::fs::write(dir.path().join("scene.xml"), xml).unwrap();
+    let d = load_mitsuba_xml(&dir.path().join("scene.xml"), &[]).unwrap();
+    let EmitterDesc::EnvMap { image, scale, .. } = &d.emitters[0] else { panic!() };
+    assert_eq!((image.width, image.height, *scale), (4, 2, 2.0));
+    let scene = opal::scene::Scene::build(&d).unwrap();
+    // straight up: the first row (all texels of the pole row are averaged by the lookup of
+    // u; at +y the row's bilinear weights still apply in u) — 2 × row 0
+    let up = scene.lights[0].le_escaped(Vec3::Y);
+    assert!(up[0] >= 2.0 && up[0] <= 8.0, "{up:?}");
+    let down = scene.lights[0].le_escaped(-Vec3::Y);
+    assert!(down[0] >= 10.0 && down[0] <= 16.0, "{down:?}");
+
+    // errors
+    let (_, s) = err_body(r#"<emitter type="envmap"/>"#);
+    assert!(s.contains("`filename` is required"), "{s}");
+    let (_, s) = err_body(r#"<emitter type="envmap"><string name="filename" value="none.exr"/></emitter>"#);
+    assert!(s.contains("envmap") && s.contains("none.exr"), "{s}");
+    let (_, s) = err_body(r#"<emitter type="constant"><float name="scale" value="2"/></emitter>"#);
+    assert!(s.contains("scale"), "{s}");
+    let (_, s) = err_body(
+        r#"<emitter type="directional"><vector name="direction" value="0, 0, 1"/>
+           <transform name="to_world"><rotate x="1" angle="90"/></transform></emitter>"#,
+    );
+    assert!(s.contains("either `direction` or `to_world`"), "{s}");
+    let build_err = |body: &str| opal::scene::Scene::build(&ok(body)).unwrap_err().to_string();
+    let s = build_err(
+        r#"<emitter type="spot"><float name="cutoff_angle" value="10"/><float name="beam_width" value="12"/></emitter>"#,
+    );
+    assert!(s.contains("beam_width"), "{s}");
+    let s = build_err(r#"<emitter type="spot"><float name="cutoff_angle" value="95"/></emitter>"#);
+    assert!(s.contains("cutoff_angle"), "{s}");
+    let s = build_err(r#"<emitter type="directional"><rgb name="irradiance" value="-1"/></emitter>"#);
+    assert!(s.contains("irradiance"), "{s}");
+    let s =
+        build_err(r#"<emitter type="spot"><transform name="to_world"><scale x="2"/></transform></emitter>"#);
+    assert!(s.contains("rotation"), "{s}");
 }

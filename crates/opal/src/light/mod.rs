@@ -4,6 +4,15 @@
 //!   constant radiance `Le` on its front side (the side of the geometric normal given by
 //!   counter-clockwise winding). Power Φ = π · A · Le.
 //! * [`Light::Point`]: isotropic point light of radiant intensity I; Φ = 4π I.
+//! * [`Light::Spot`]: Mitsuba's `spot` ([`spot`]), a delta in position.
+//! * [`Light::Directional`]: Mitsuba's `directional` ([`directional`]), a delta in direction,
+//!   infinitely far away.
+//! * [`Light::Env`]: Mitsuba's `constant` and `envmap` ([`envmap`]), infinitely far away,
+//!   seen by rays that leave the scene ([`Light::le_escaped`]).
+//!
+//! Infinite lights (directional, environment) return samples with `dist = ∞`; their shadow
+//! ray is [`LightSample::shadow_ray`]. Their power and emission use the scene's bounding
+//! sphere ([`Light::set_bounds`], called by the scene builder).
 //!
 //! `sample_li` (next-event estimation from a reference point) samples the triangle uniformly by
 //! area and converts to solid angle: pdf = d² / (|cos θ_l| A). `pdf_li` returns the same density
@@ -13,6 +22,14 @@
 //!
 //! Tests (below): χ² of the solid-angle sampling against `pdf_li`, power vs quadrature,
 //! light choice proportional to power, `sample_le` densities.
+
+pub mod directional;
+pub mod envmap;
+pub mod spot;
+
+pub use directional::DirectionalLight;
+pub use envmap::EnvLight;
+pub use spot::SpotLight;
 
 use crate::geometry::Ray;
 use crate::math::{Frame, PI, Vec2, Vec3};
@@ -33,6 +50,12 @@ pub enum Light {
         /// Radiant intensity [W/sr].
         intensity: Spectrum,
     },
+    /// Spot light.
+    Spot(SpotLight),
+    /// Directional light.
+    Directional(DirectionalLight),
+    /// Environment (`constant` or `envmap`).
+    Env(EnvLight),
 }
 
 /// One triangle of an area emitter.
@@ -84,7 +107,7 @@ impl TriangleLight {
 pub struct LightSample {
     /// Unit direction from the reference point towards the light.
     pub wi: Vec3,
-    /// Distance to the sampled point on the light.
+    /// Distance to the sampled point on the light (∞ for directional and environment lights).
     pub dist: f32,
     /// Sampled point on the light.
     pub p: Vec3,
@@ -98,18 +121,34 @@ pub struct LightSample {
     pub is_delta: bool,
 }
 
+impl LightSample {
+    /// The shadow ray from the surface point `p` (geometric normal `ng`) to the sampled point:
+    /// up to the point (both ends offset), or unbounded for infinitely distant lights.
+    #[inline]
+    pub fn shadow_ray(&self, p: Vec3, ng: Vec3) -> Ray {
+        if self.dist.is_infinite() {
+            crate::accel::spawn_ray(p, ng, self.wi)
+        } else {
+            crate::accel::spawn_ray_to(p, ng, self.p, self.n)
+        }
+    }
+}
+
 /// Result of [`Light::sample_le`].
 #[derive(Clone, Copy, Debug)]
 pub struct EmissionSample {
     /// Emitted ray (origin on the light, unit direction).
     pub ray: Ray,
-    /// Normal at the origin (zero for point lights).
+    /// Normal at the origin (zero for point, spot, directional and environment lights: no
+    /// cosine at the origin, no offset).
     pub n: Vec3,
-    /// Emitted radiance along the ray (point lights: intensity).
+    /// Emitted radiance along the ray (point and spot lights: intensity; directional:
+    /// irradiance; environment: radiance).
     pub le: Spectrum,
-    /// Area density of the origin (point lights: 1).
+    /// Area density of the origin (point and spot lights: 1; directional and environment:
+    /// 1/(πR²) on the disk over the scene's bounding sphere).
     pub pdf_pos: f32,
-    /// Solid-angle density of the direction.
+    /// Solid-angle density of the direction (directional lights: 1, a delta).
     pub pdf_dir: f32,
 }
 
@@ -119,6 +158,49 @@ impl Light {
         match self {
             Light::Triangle(t) => t.radiance * (PI * t.area),
             Light::Point { intensity, .. } => *intensity * (4.0 * PI),
+            Light::Spot(s) => s.power(),
+            Light::Directional(d) => d.power(),
+            Light::Env(e) => e.power(),
+        }
+    }
+
+    /// True for lights that are a delta in position or direction (point, spot, directional):
+    /// [`Light::sample_li`] returns the same incident light for every sample.
+    pub fn is_delta(&self) -> bool {
+        matches!(self, Light::Point { .. } | Light::Spot(_) | Light::Directional(_))
+    }
+
+    /// True for lights infinitely far away (directional, environment).
+    pub fn is_infinite(&self) -> bool {
+        matches!(self, Light::Directional(_) | Light::Env(_))
+    }
+
+    /// Sets the scene's bounding sphere (used by infinite lights; others ignore it).
+    pub fn set_bounds(&mut self, center: Vec3, radius: f32) {
+        match self {
+            Light::Directional(d) => d.set_bounds(center, radius),
+            Light::Env(e) => e.set_bounds(center, radius),
+            _ => {}
+        }
+    }
+
+    /// Radiance arriving along a ray of direction `d` that left the scene (environment lights;
+    /// zero for the others).
+    #[inline]
+    pub fn le_escaped(&self, d: Vec3) -> Spectrum {
+        match self {
+            Light::Env(e) => e.eval(d),
+            _ => Spectrum::ZERO,
+        }
+    }
+
+    /// Solid-angle density with which [`Light::sample_li`] produces the direction `d` towards an
+    /// environment light (zero for the others: delta or finite lights).
+    #[inline]
+    pub fn pdf_escaped(&self, d: Vec3) -> f32 {
+        match self {
+            Light::Env(e) => e.pdf_dir(d),
+            _ => 0.0,
         }
     }
 
@@ -158,6 +240,30 @@ impl Light {
                     is_delta: true,
                 })
             }
+            Light::Spot(s) => {
+                let d = s.position - p;
+                let dist2 = d.length_squared();
+                if dist2 <= 0.0 {
+                    return None;
+                }
+                let dist = dist2.sqrt();
+                let wi = d / dist;
+                let li = s.intensity(-wi) / dist2;
+                Some(LightSample { wi, dist, p: s.position, n: Vec3::ZERO, li, pdf: 1.0, is_delta: true })
+            }
+            Light::Directional(d) => Some(LightSample {
+                wi: -d.direction,
+                dist: f32::INFINITY,
+                p,
+                n: Vec3::ZERO,
+                li: d.irradiance,
+                pdf: 1.0,
+                is_delta: true,
+            }),
+            Light::Env(e) => {
+                let (wi, pdf, li) = e.sample_dir(u)?;
+                Some(LightSample { wi, dist: f32::INFINITY, p, n: Vec3::ZERO, li, pdf, is_delta: false })
+            }
         }
     }
 
@@ -171,7 +277,7 @@ impl Light {
                 let cos_l = -d.dot(t.n) / dist2.sqrt();
                 if cos_l <= 0.0 { 0.0 } else { dist2 / (cos_l * t.area) }
             }
-            Light::Point { .. } => 0.0,
+            Light::Point { .. } | Light::Spot(_) | Light::Directional(_) | Light::Env(_) => 0.0,
         }
     }
 
@@ -185,7 +291,7 @@ impl Light {
                     Spectrum::ZERO
                 }
             }
-            Light::Point { .. } => Spectrum::ZERO,
+            _ => Spectrum::ZERO,
         }
     }
 
@@ -216,6 +322,30 @@ impl Light {
                     pdf_pos: 1.0,
                     pdf_dir: 1.0 / (4.0 * PI),
                 })
+            }
+            Light::Spot(s) => {
+                let (d, le, pdf_dir) = s.sample_dir(u_dir);
+                Some(EmissionSample {
+                    ray: Ray::new(s.position, d),
+                    n: Vec3::ZERO,
+                    le,
+                    pdf_pos: 1.0,
+                    pdf_dir,
+                })
+            }
+            Light::Directional(d) => {
+                let (o, pdf_pos) = d.sample_origin(u_pos);
+                Some(EmissionSample {
+                    ray: Ray::new(o, d.direction),
+                    n: Vec3::ZERO,
+                    le: d.irradiance,
+                    pdf_pos,
+                    pdf_dir: 1.0,
+                })
+            }
+            Light::Env(e) => {
+                let (o, d, le, pdf_pos, pdf_dir) = e.sample_emission(u_pos, u_dir)?;
+                Some(EmissionSample { ray: Ray::new(o, d), n: Vec3::ZERO, le, pdf_pos, pdf_dir })
             }
         }
     }

@@ -52,7 +52,7 @@ pub struct SurfaceInteraction {
 pub struct Scene {
     /// Shapes.
     pub shapes: Vec<Shape>,
-    /// Lights (one per emitting triangle, then the point lights).
+    /// Lights (one per emitting triangle, then the other emitters in the order of the description).
     pub lights: Vec<Light>,
     /// Cameras.
     pub cameras: Vec<Camera>,
@@ -68,6 +68,8 @@ pub struct Scene {
     prim_ng: Vec<Vec3>,
     light_sampler: Option<LightSampler>,
     bounds: (Vec3, Vec3),
+    /// Indices of the environment lights (seen by rays that leave the scene).
+    env_lights: Vec<usize>,
 }
 
 const NO_LIGHT: u32 = u32::MAX;
@@ -161,8 +163,17 @@ impl Scene {
                     }
                     lights.push(Light::Point { position: *position, intensity: *intensity });
                 }
+                other => lights.push(super::emitters::build_emitter(other)?),
             }
         }
+        // infinite lights cover the scene's bounding sphere (Mitsuba: the bounding box's sphere)
+        let (center, radius) =
+            if lo.cmple(hi).all() { ((lo + hi) * 0.5, (hi - lo).length() * 0.5) } else { (Vec3::ZERO, 0.0) };
+        for l in &mut lights {
+            l.set_bounds(center, radius);
+        }
+        let env_lights =
+            lights.iter().enumerate().filter(|(_, l)| matches!(l, Light::Env(_))).map(|(i, _)| i).collect();
         let mut cameras = Vec::new();
         for s in &desc.sensors {
             if !(s.fov_x_deg > 0.0 && s.fov_x_deg < 180.0) {
@@ -199,6 +210,7 @@ impl Scene {
             prim_ng,
             light_sampler,
             bounds: (lo, hi),
+            env_lights,
         })
     }
 
@@ -283,6 +295,13 @@ impl Scene {
     pub fn light_at(&self, prim: u32) -> Option<(usize, &Light)> {
         let l = self.prim_light[prim as usize];
         (l != NO_LIGHT).then(|| (l as usize, &self.lights[l as usize]))
+    }
+
+    /// Indices (into [`Scene::lights`]) of the environment lights, which rays leaving the
+    /// scene see.
+    #[inline]
+    pub fn env_lights(&self) -> &[usize] {
+        &self.env_lights
     }
 
     /// The power-proportional light sampler (`None` when the scene has no light).

@@ -60,6 +60,42 @@ pub enum EmitterDesc {
         /// Radiant intensity.
         intensity: Spectrum,
     },
+    /// Mitsuba `constant`: the same radiance from every direction.
+    Constant {
+        /// Radiance.
+        radiance: Spectrum,
+    },
+    /// Mitsuba `envmap`: a latitude–longitude radiance map (see [`crate::light::EnvLight`]).
+    EnvMap {
+        /// The map (linear values, row 0 at local +y).
+        image: Arc<Image>,
+        /// Factor on the map's values.
+        scale: f32,
+        /// Local → world (a rotation).
+        to_world: Mat4,
+        /// File it came from.
+        path: std::path::PathBuf,
+    },
+    /// Mitsuba `spot` (see [`crate::light::SpotLight`]).
+    Spot {
+        /// Local → world (position = image of the origin; axis = local +z; a rotation otherwise).
+        to_world: Mat4,
+        /// Radiant intensity on the axis.
+        intensity: Spectrum,
+        /// Cut-off angle in degrees.
+        cutoff_deg: f32,
+        /// Angle of full intensity in degrees.
+        beam_width_deg: f32,
+        /// Optional texture projected over the cone.
+        texture: Option<TextureDesc>,
+    },
+    /// Mitsuba `directional`.
+    Directional {
+        /// Direction the light travels (world space).
+        direction: Vec3,
+        /// Irradiance on a perpendicular surface.
+        irradiance: Spectrum,
+    },
 }
 
 /// Texture or constant.

@@ -4,6 +4,7 @@
 
 pub mod build;
 pub mod desc;
+mod emitters;
 pub mod load;
 pub mod material;
 

@@ -74,7 +74,8 @@
 //!   `LambertTable`) and the portable lane kernels (`scatter_lanes` and its helpers);
 //! * `avx.rs`: the AVX2 steps of the wavefront (x86-64 only);
 //! * `starts.rs`: path starts prepared eight at a time (triangle lights in SIMD);
-//! * `tests.rs`: the unit tests.
+//! * `tests.rs`: the unit tests; `tests_emitters.rs`: the emission of spot, directional and
+//!   environment lights against the path tracer.
 //!
 //! Tests (`tests.rs`): a quad under a point light (E = I cos θ / d², analytic) and a quad under a
 //! small area light against a quadrature of ∫ L cos dω; indirect light in a closed furnace-like
@@ -84,6 +85,12 @@
 //! 2 and 3 threads and for the three engines (wavefront with ray packets, wavefront with one ray
 //! per lane, one path at a time); the `i32` cells with spill against plain `i64` sums (random
 //! deposits up to 2⁴⁰ units); `direct: false` leaves the indirect map bitwise unchanged.
+//! `tests_emitters.rs`: per texel, the irradiance of a floor under an occluder lit by a
+//! `constant`, `envmap`, `spot` or `directional` light agrees with the path tracer's estimate.
+//!
+//! Infinite lights (directional, environment) emit from a disk of the scene's bounding-sphere
+//! radius perpendicular to the direction, outside the sphere (`Light::sample_le`, area density
+//! 1/(πR²)); a spot emits uniformly in its cone. These start through `start_path`.
 
 // The SIMD fast paths exist on x86-64 only; elsewhere the scalar paths run (same results).
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_imports, unused_variables))]
@@ -99,6 +106,8 @@ mod wavefront;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_emitters;
 
 use crate::sampling::RngStream;
 use crate::scene::Scene;

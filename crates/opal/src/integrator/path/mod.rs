@@ -14,6 +14,11 @@
 //! `Rng::new(seed, c, y·W + x)`, its samples one after the other; rows are rendered in parallel
 //! and written in place, so the image is identical for any thread count.
 //!
+//! Environment lights (`constant`, `envmap`): a ray that leaves the scene gets their radiance
+//! (`escaped`), MIS-weighted against their next-event sampling exactly like an emitting triangle
+//! hit; directional and spot lights are deltas reached only by next-event estimation, with
+//! weight 1.
+//!
 //! Structure: one path vertex is `vertex` (emission found, next-event sample, BSDF sample,
 //! Russian roulette); it returns the shadow ray and its contribution instead of tracing it, so
 //! the caller may batch shadow rays. [`li`] traces one path with single rays. [`render`] picks,
@@ -35,7 +40,7 @@
 //! radiance Le/(1−ρ) everywhere, also with lossless glass objects inside; agreement with Mitsuba 3 on the reference Cornell box by
 //! z-tests on 16×16 blocks; thread-count independence), `opal-cli/tests/render_cli.rs`.
 
-use super::{mis_power, spawn_ray, spawn_ray_to};
+use super::{mis_power, spawn_ray};
 use crate::accel::Accel;
 use crate::bsdf::{Bxdf, TransportMode};
 use crate::geometry::Ray;
@@ -136,6 +141,33 @@ fn emission(scene: &Scene, s: &PathSettings, st: &mut PathState, ray: &Ray, si: 
     depth
 }
 
+/// A ray that left the scene: adds the radiance of the environment lights along it,
+/// MIS-weighted against their next-event sampling like an emitter hit (weight 1 for camera rays
+/// and after delta scattering; nothing for camera rays with `hide_emitters`). The escape counts
+/// as the next vertex for the depth limit, which [`vertex`] already enforced before casting the
+/// ray. Shared by [`li`] and the wavefront (`wavefront`).
+#[inline]
+fn escaped(scene: &Scene, s: &PathSettings, st: &mut PathState, ray: &Ray) {
+    if scene.env_lights().is_empty() || (st.depth == 0 && s.hide_emitters) {
+        return;
+    }
+    for &i in scene.env_lights() {
+        let light = &scene.lights[i];
+        let le = light.le_escaped(ray.d);
+        if le.is_black() {
+            continue;
+        }
+        let w = match st.prev {
+            None | Some((_, _, true)) => 1.0,
+            Some((_, pdf_bsdf, false)) => {
+                let pmf = scene.light_sampler().map_or(0.0, |ls| ls.pmf(i));
+                mis_power(pdf_bsdf, pmf * light.pdf_escaped(ray.d))
+            }
+        };
+        st.l += st.beta * le * w;
+    }
+}
+
 /// One path vertex at the hit `si` of `ray`: adds the emission found there, then (unless the
 /// depth limit ends the path) draws the next-event sample and the BSDF sample. Returns the
 /// shadow ray whose `contrib` the caller adds to `st.l` if it is unoccluded (before the next
@@ -173,7 +205,7 @@ fn vertex(
                     let pdf_light = pmf * smp.pdf;
                     let w = if smp.is_delta { 1.0 } else { mis_power(pdf_light, bsdf.pdf(wo_l, wi_l, mode)) };
                     shadow = Some(Shadow {
-                        ray: spawn_ray_to(si.p, si.ng, smp.p, smp.n),
+                        ray: smp.shadow_ray(si.p, si.ng),
                         contrib: st.beta * f * smp.li * (w / pdf_light),
                     });
                 }
@@ -206,7 +238,11 @@ fn vertex(
 /// Radiance arriving along `ray` (one path sample).
 pub fn li(scene: &Scene, mut ray: Ray, rng: &mut Rng, s: &PathSettings) -> Spectrum {
     let mut st = PathState::START;
-    while let Some(si) = scene.intersect(&ray) {
+    loop {
+        let Some(si) = scene.intersect(&ray) else {
+            escaped(scene, s, &mut st, &ray);
+            break;
+        };
         let (shadow, next) = vertex(scene, s, &mut st, &ray, &si, rng);
         if let Some(sh) = shadow {
             if !scene.occluded(&sh.ray) {

@@ -134,3 +134,32 @@ fn cancellable_render_matches_and_stops() {
     let c = render_cancellable(&scene, 0, &s, &|| {}, Some(&flag));
     assert!(matches!(c, Err(crate::error::Error::Interrupted { .. })));
 }
+
+/// The row wavefront (scalar vertex in packet lanes; the wide kernel does not take scenes with
+/// non-triangle lights) gives the scalar rows' bits on the emitter scenes of
+/// `tests/mitsuba_emitters.rs`: rays leaving the scene add the environment in both, infinite
+/// lights' unbounded shadow rays go through the batched occlusion test.
+#[test]
+fn wavefront_rows_equal_scalar_rows_with_environment_and_delta_lights() {
+    for name in ["envmap", "spot", "directional"] {
+        let xml = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(format!("tests/data/mitsuba_emitters/{name}/scene.xml"));
+        let scene = Scene::build(&load_mitsuba_xml(&xml, &[]).unwrap()).unwrap();
+        assert!(wavefront::wide_kernel(&scene, Kernel::Portable).is_none());
+        let w = scene.cameras[0].width;
+        for s in [
+            PathSettings { spp: 3, max_depth: 8, rr_depth: 5, hide_emitters: false, seed: 7 },
+            PathSettings { spp: 2, max_depth: -1, rr_depth: 2, hide_emitters: true, seed: 7 },
+        ] {
+            // the top rows of the open scenes are sky: hidden with `hide_emitters`, black for
+            // the delta lights
+            for y in [w / 2 + 1, 3 * w / 4] {
+                let (mut a, mut b) = (Row::new(w), Row::new(w));
+                render_row_scalar(&scene, 0, y, &s, &mut a);
+                RowPlan::Wavefront.render(&scene, None, 0, y, &s, &mut b);
+                assert!(a.mean.iter().any(|p| !p.is_black()), "{name} row {y} is lit");
+                assert_eq!(bits(&a), bits(&b), "{name} row {y} {s:?}");
+            }
+        }
+    }
+}

@@ -150,6 +150,7 @@ fn shade_scalar(
     for (k, slot) in lanes.iter_mut().enumerate() {
         let Some(lane) = slot else { continue };
         if hits.prim[k] < 0 {
+            super::escaped(scene, s, &mut lane.st, &lane.ray);
             ended[k] = true;
             continue;
         }

@@ -59,7 +59,7 @@ pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
         ],
     ),
     ("texture", &["bitmap"]),
-    ("emitter", &["area", "point"]),
+    ("emitter", &["area", "point", "constant", "envmap", "spot", "directional"]),
     ("sensor", &["perspective"]),
     ("film", &["hdrfilm"]),
     ("sampler", &["independent"]),
@@ -206,7 +206,11 @@ impl Loader {
                 p.finish("radiance")?;
                 Object::AreaEmitter(AreaEmitterDesc { radiance })
             }
-            ("emitter", "point") => point_emitter(p)?,
+            ("emitter", "point") => super::emitters::point_emitter(p)?,
+            ("emitter", "constant") => super::emitters::constant_emitter(p)?,
+            ("emitter", "envmap") => super::emitters::envmap_emitter(e, p)?,
+            ("emitter", "spot") => super::emitters::spot_emitter(p)?,
+            ("emitter", "directional") => super::emitters::directional_emitter(p)?,
             ("sensor", "perspective") => Object::Sensor(Box::new(self.sensor(e, &mut p)?)),
             ("film", "hdrfilm") => self.film(p)?,
             ("sampler", "independent") => sampler(p)?,
@@ -623,23 +627,6 @@ fn bsdf_blend(e: &Elem, mut p: Props) -> Result<Object> {
     let d = crate::bsdf::Dotted::new(w as f32, second, first)
         .map_err(|err| e.loc.err(format!("{}: {err}", e.describe())))?;
     Ok(Object::Bsdf(BsdfDesc::Lobe(crate::bsdf::Bxdfs::Dotted(d))))
-}
-
-/// `emitter type="point"`: `position` or `to_world`, and `intensity`.
-fn point_emitter(mut p: Props) -> Result<Object> {
-    let pos = p.point("position")?;
-    let tw = p.transform("to_world")?;
-    let position = match (pos, tw) {
-        (Some(_), Some((_, l))) => {
-            return Err(l.err("point emitter: give either `position` or `to_world`, not both"));
-        }
-        (Some(v), None) => v,
-        (None, Some((m, _))) => m.transform_point3(DVec3::ZERO),
-        (None, None) => DVec3::ZERO,
-    };
-    let intensity = p.color("intensity")?.map_or(Spectrum::ONE, |c| c.0);
-    p.finish("position, to_world, intensity")?;
-    Ok(Object::Emitter(EmitterDesc::Point { position: position.as_vec3(), intensity }))
 }
 
 /// `sampler type="independent"`: the sample count (Mitsuba's default 4).
