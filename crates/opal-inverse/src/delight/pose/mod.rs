@@ -23,7 +23,7 @@
 //! they sit where the geometry puts them, not on the pixel grid.
 //!
 //! Prior and convergence: each alignment may be pulled toward the given pose by a Gaussian prior
-//! as wide as the stated pose uncertainty ([`PoseSettings::prior_px`]); how far each view moved
+//! as wide as the stated pose uncertainty ([`PoseSettings::prior_px`], off by default); how far each view moved
 //! in each round is reported ([`ViewPose::round_steps_px`]) so that views that keep moving
 //! along their orbit are visible.
 //!
@@ -109,10 +109,12 @@ pub struct PoseSettings {
     pub tolerance_deg: f64,
     /// The stated uncertainty of the given poses (pixels of reprojection at the scene): each
     /// alignment is pulled toward the given pose by a Gaussian prior this wide
-    /// ([`solve::PosePrior`]); `None`: no prior.
+    /// ([`solve::PosePrior`]); `None` (default): no prior. Measured on the Mitsuba room (1 px
+    /// with the pivot): no better than without (docs/delight.md "Pose refinement").
     pub prior_px: Option<f64>,
     /// Rotate about a point at the view's mean depth instead of the camera centre in the
-    /// 6-parameter alignments ([`AlignSettings::pivot_at_scene`]).
+    /// 6-parameter alignments ([`AlignSettings::pivot_at_scene`]); default off (measured: no
+    /// better on the Mitsuba room).
     pub pivot_at_scene: bool,
 }
 
@@ -129,8 +131,8 @@ impl Default for PoseSettings {
             max_translation: 0.05,
             common_motion: true,
             tolerance_deg: 0.0,
-            prior_px: Some(1.0),
-            pivot_at_scene: true,
+            prior_px: None,
+            pivot_at_scene: false,
         }
     }
 }

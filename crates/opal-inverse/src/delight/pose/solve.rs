@@ -70,6 +70,7 @@ pub struct AlignSettings {
     /// view's pixels instead of about the camera centre: the rotation then moves the scene's
     /// image and the translation mostly its parallax, so the two no longer trade against each
     /// other along the orbit and the damped steps follow that valley. The optimum is the same.
+    /// Default off (bit for bit the camera-centre steps).
     pub pivot_at_scene: bool,
     /// A prior toward a pose (the given one) as strong as its stated uncertainty.
     pub prior: Option<PosePrior>,
@@ -95,7 +96,7 @@ impl Default for AlignSettings {
             max_iterations: 12,
             step_tolerance: 2e-6,
             edge_system: false,
-            pivot_at_scene: true,
+            pivot_at_scene: false,
             prior: None,
         }
     }
