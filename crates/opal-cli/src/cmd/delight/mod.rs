@@ -688,6 +688,7 @@ fn write_outputs(
                 "translation": v.translation, "accepted": v.accepted, "used": v.used,
                 "converged": v.converged, "iterations": v.iterations, "pixels": v.pixels,
                 "rms_before": finite(v.rms_before), "rms_after": finite(v.rms_after), "reason": v.reason,
+                "round_steps_px": v.round_steps_px.iter().map(|&x| finite(x)).collect::<Vec<_>>(),
             })).collect::<Vec<_>>(),
         })
     });

@@ -22,6 +22,11 @@
 //! of the prediction are rendered with 4 × 4 rays per pixel (box filter, as the photos) so
 //! they sit where the geometry puts them, not on the pixel grid.
 //!
+//! Prior and convergence: each alignment may be pulled toward the given pose by a Gaussian prior
+//! as wide as the stated pose uncertainty ([`PoseSettings::prior_px`], off by default); how far each view moved
+//! in each round is reported ([`ViewPose::round_steps_px`]) so that views that keep moving
+//! along their orbit are visible.
+//!
 //! Failure: a view whose alignment does not converge, whose correction exceeds
 //! [`PoseSettings::max_rotation_deg`] / [`PoseSettings::max_translation`], or whose residual
 //! grows keeps its given pose, is flagged ([`ViewPose::used`] false, with a warning) and is left
@@ -34,6 +39,8 @@
 //! `tests/delight_room.rs` (`mitsuba_room_perturbed_poses`, ignored: the Mitsuba room with
 //! every camera perturbed).
 
+mod edges;
+mod render;
 pub mod solve;
 #[cfg(test)]
 mod tests;
@@ -100,6 +107,15 @@ pub struct PoseSettings {
     /// Stop after a round (past the rotation-only ones) in which no view moved by more than
     /// this (degrees, and this angle × its distance to the scene for the camera position).
     pub tolerance_deg: f64,
+    /// The stated uncertainty of the given poses (pixels of reprojection at the scene): each
+    /// alignment is pulled toward the given pose by a Gaussian prior this wide
+    /// ([`solve::PosePrior`]); `None` (default): no prior. Measured on the Mitsuba room (1 px
+    /// with the pivot): no better than without (docs/delight.md "Pose refinement").
+    pub prior_px: Option<f64>,
+    /// Rotate about a point at the view's mean depth instead of the camera centre in the
+    /// 6-parameter alignments ([`AlignSettings::pivot_at_scene`]); default off (measured: no
+    /// better on the Mitsuba room).
+    pub pivot_at_scene: bool,
 }
 
 impl Default for PoseSettings {
@@ -115,6 +131,8 @@ impl Default for PoseSettings {
             max_translation: 0.05,
             common_motion: true,
             tolerance_deg: 0.0,
+            prior_px: None,
+            pivot_at_scene: false,
         }
     }
 }
@@ -148,6 +166,11 @@ pub struct ViewPose {
     pub rms_after: f64,
     /// Pixels used by the last alignment.
     pub pixels: usize,
+    /// How far the view moved in each round (pixels at the scene: the larger of the rotation
+    /// over a pixel's angle and the camera's displacement over a pixel's footprint at the
+    /// scene centre), the common motion included; a view still moving in the last rounds has
+    /// not settled against the others.
+    pub round_steps_px: Vec<f64>,
     /// Why the correction was rejected (empty when accepted).
     pub reason: String,
 }
@@ -374,7 +397,15 @@ pub fn refine_poses(
         sigmas: s.sigmas.clone(),
         max_iterations: s.max_iterations,
         edge_system: s.common_motion,
+        pivot_at_scene: s.pivot_at_scene,
         ..Default::default()
+    };
+    let mut steps_px: Vec<Vec<f64>> = vec![Vec::new(); views.len()];
+    // a view's step in pixels at the scene
+    let step_px = |k: usize, a: DMat4, b: DMat4| {
+        let (ang, dist) = solve_error(a, b);
+        let pix = 2.0 * views[k].camera.tan_half_x as f64 / views[k].camera.width as f64;
+        (ang.to_radians() / pix).max(dist / (pix * scene_depth(views, k, scene)))
     };
     let (lo, hi) = scene.bounds();
     let centre = (0.5 * (lo + hi)).as_dvec3();
@@ -391,6 +422,7 @@ pub fn refine_poses(
             .collect();
         let pure: Vec<PureBuffer> =
             current.iter().map(|v| erode(&views::pure_buffer(scene, &v.camera), s.edge_margin)).collect();
+        let start = poses.clone();
         let mut next = poses.clone();
         let mut edges: Vec<Option<solve::EdgeSystem>> = vec![None; views.len()];
         for k in 0..views.len() {
@@ -417,8 +449,11 @@ pub fn refine_poses(
             // translation that nearly cancel at the depth of the scene) is weakly constrained and
             // would follow the blur of maps made from misregistered views
             let rot_only = round < s.rotation_rounds.min(s.rounds.max(1) - 1);
-            let align =
-                AlignSettings { dof: if rot_only { PoseDof::Rotation } else { dof }, ..align.clone() };
+            let align = AlignSettings {
+                dof: if rot_only { PoseDof::Rotation } else { dof },
+                prior: s.prior_px.map(|sigma_px| solve::PosePrior { to_world: given[k], sigma_px }),
+                ..align.clone()
+            };
             let fit = align_view(scene, &current[k].camera, &photos[k], &predict, &align);
             iterations[k] += fit.iterations;
             let (ang, dist) = solve_error(poses[k], fit.to_world);
@@ -480,6 +515,9 @@ pub fn refine_poses(
                 }
             }
         }
+        for k in 0..views.len() {
+            steps_px[k].push(step_px(k, start[k], poses[k]));
+        }
         if round + 1 > s.rotation_rounds && moved < s.tolerance_deg {
             log(&format!("pose: converged after round {} (largest step {moved:.4}°)", round + 1));
             break;
@@ -516,6 +554,7 @@ pub fn refine_poses(
             rms_before: f.as_ref().map_or(f64::NAN, |f| f.rms_before),
             rms_after: f.as_ref().map_or(f64::NAN, |f| f.rms_after),
             pixels: f.as_ref().map_or(0, |f| f.pixels),
+            round_steps_px: steps_px[k].clone(),
             reason,
         });
     }

@@ -15,6 +15,16 @@
 //! ≥ 99 % of its Gaussian weight (a prediction cut at an undefined neighbour is not the blur of
 //! the photo).
 //!
+//! Parameters: with 6 of them the step rotates about a point on the optical axis at the mean
+//! depth of the used pixels ([`AlignSettings::pivot_at_scene`], [`compose_about`]): the
+//! Jacobian's rotation columns become `J_ω + J_δ·[c]×`, so the rotation moves the image of the
+//! scene and the translation mostly its parallax (the optimum is the same; the damped steps are
+//! better conditioned along the orbit). An optional Gaussian prior toward the given pose
+//! ([`PosePrior`]) adds its normal equations (central differences of its residual), the
+//! photo's residuals counted as independent per blur footprint `4πσ²` with the robust scale
+//! as their noise. The prediction is rendered in `render.rs`, the geometric-edge system for the
+//! common motion is in `edges.rs`.
+//!
 //! Conventions: Mitsuba's camera (`opal::camera`): local +z forward, +x image left;
 //! `px = (1 − x/(z·tan_x))·W/2`, `py = (1 − y/(z·tan_y))·H/2`.
 //!
@@ -23,8 +33,12 @@
 //! 0.05 %; rotation-only mode; the pose composition and the projection Jacobian against finite
 //! differences.
 
+pub use super::edges::EdgeSystem;
+use super::edges::edge_system;
+pub use super::render::blur;
+use super::render::render_prediction;
 use opal::camera::Camera;
-use opal::math::{DMat4, DVec3, Vec2, Vec3};
+use opal::math::{DMat4, DVec3};
 use opal::scene::{Scene, SurfaceInteraction};
 use rayon::prelude::*;
 
@@ -52,6 +66,26 @@ pub struct AlignSettings {
     /// Also return the geometric-edge normal equations at the refined pose
     /// ([`Alignment::edges`]).
     pub edge_system: bool,
+    /// In [`PoseDof::Full`], rotate about a point on the optical axis at the mean depth of the
+    /// view's pixels instead of about the camera centre: the rotation then moves the scene's
+    /// image and the translation mostly its parallax, so the two no longer trade against each
+    /// other along the orbit and the damped steps follow that valley. The optimum is the same.
+    /// Default off (bit for bit the camera-centre steps).
+    pub pivot_at_scene: bool,
+    /// A prior toward a pose (the given one) as strong as its stated uncertainty.
+    pub prior: Option<PosePrior>,
+}
+
+/// Gaussian prior on the pose: the camera's rotation within `sigma_px` pixel angles of
+/// `to_world`'s and its position within `sigma_px` pixel footprints at the view's mean depth.
+/// The photo's residuals are weighed against it as independent per blur footprint
+/// (`4πσ²` pixels at blur `σ`, at least one) with the robust residual scale as their noise.
+#[derive(Clone, Copy, Debug)]
+pub struct PosePrior {
+    /// Mean of the prior (the given camera-to-world matrix).
+    pub to_world: DMat4,
+    /// Standard deviation in pixels (reprojection at the view's mean depth).
+    pub sigma_px: f64,
 }
 
 impl Default for AlignSettings {
@@ -62,6 +96,8 @@ impl Default for AlignSettings {
             max_iterations: 12,
             step_tolerance: 2e-6,
             edge_system: false,
+            pivot_at_scene: false,
+            prior: None,
         }
     }
 }
@@ -116,130 +152,72 @@ pub fn compose(to_world: DMat4, omega: DVec3, delta: DVec3) -> DMat4 {
     to_world * DMat4::from_translation(delta) * r
 }
 
-/// Separable Gaussian blur of `v` (NaN = undefined) by normalised convolution; returns the
-/// blurred values and the defined fraction of the kernel weight per pixel.
-pub fn blur(v: &[f32], w: usize, h: usize, sigma: f64) -> (Vec<f32>, Vec<f32>) {
-    let r = (3.0 * sigma).ceil() as i64;
-    let k: Vec<f64> = (-r..=r).map(|d| (-(d * d) as f64 / (2.0 * sigma * sigma)).exp()).collect();
-    let ks: f64 = k.iter().sum();
-    let k: Vec<f64> = k.iter().map(|x| x / ks).collect();
-    let pass = |src: &[(f64, f64)], horizontal: bool| -> Vec<(f64, f64)> {
-        (0..w * h)
-            .into_par_iter()
-            .map(|i| {
-                let (x, y) = ((i % w) as i64, (i / w) as i64);
-                let mut acc = (0.0, 0.0);
-                for (j, d) in (-r..=r).enumerate() {
-                    let (xx, yy) = if horizontal { (x + d, y) } else { (x, y + d) };
-                    if xx < 0 || yy < 0 || xx >= w as i64 || yy >= h as i64 {
-                        continue;
-                    }
-                    let s = src[yy as usize * w + xx as usize];
-                    acc.0 += k[j] * s.0;
-                    acc.1 += k[j] * s.1;
-                }
-                acc
-            })
-            .collect()
-    };
-    let init: Vec<(f64, f64)> =
-        v.iter().map(|&x| if x.is_finite() { (x as f64, 1.0) } else { (0.0, 0.0) }).collect();
-    let t = pass(&init, true);
-    let s = pass(&t, false);
-    s.iter().map(|&(a, m)| (if m > 1e-9 { (a / m) as f32 } else { f32::NAN }, m as f32)).unzip()
+/// `to_world · T(δ) · T(c) · R(ω) · T(−c)`: the pose rotated by `ω` about the camera-frame point
+/// `c` and moved by `δ` (camera frame); [`compose`] when `c` is the origin.
+pub fn compose_about(to_world: DMat4, omega: DVec3, delta: DVec3, pivot: DVec3) -> DMat4 {
+    let angle = omega.length();
+    let r = if angle > 0.0 { DMat4::from_axis_angle(omega / angle, angle) } else { DMat4::IDENTITY };
+    to_world * DMat4::from_translation(delta + pivot) * r * DMat4::from_translation(-pivot)
 }
 
-/// Surface a pixel's centre ray hits: shape and geometric normal.
-type SurfaceKey = Option<(u32, Vec3)>;
-
-/// The predicted image at one pose.
-struct Prediction {
-    /// Prediction per pixel (NaN = none).
-    p: Vec<f32>,
-    /// Centre-ray hit point.
-    hits: Vec<Option<DVec3>>,
-    /// Centre-ray hit surface.
-    keys: Vec<SurfaceKey>,
-    /// The pixel straddles an edge (its prediction is the pixel mean).
-    mixed: Vec<bool>,
+/// A Jacobian row over ([`compose`]'s ω, δ, …) turned into one over [`compose_about`]'s with
+/// pivot `c`: the rotation columns become `J_ω + J_δ·[c]×` (the other columns unchanged).
+pub fn pivot_columns<const N: usize>(j: &[f64; N], c: DVec3) -> [f64; N] {
+    let mut o = *j;
+    o[0] += c.z * j[4] - c.y * j[5];
+    o[1] += c.x * j[5] - c.z * j[3];
+    o[2] += c.y * j[3] - c.x * j[4];
+    o
 }
 
-/// The prediction, the centre-ray hit point and the hit surface of every pixel at camera `cam`.
-fn render_prediction(
-    scene: &Scene,
-    cam: &Camera,
-    predict: &(dyn Fn(&SurfaceInteraction) -> Option<f32> + Sync),
-) -> Prediction {
-    let (w, h) = (cam.width, cam.height);
-    let px: Vec<(f32, Option<DVec3>, SurfaceKey)> = (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            let c = Vec2::new((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
-            match scene.intersect(&cam.generate_ray(c)) {
-                Some(si) => {
-                    (predict(&si).unwrap_or(f32::NAN), Some(si.p.as_dvec3()), Some((si.shape, si.ng)))
-                }
-                None => (f32::NAN, None, None),
-            }
-        })
-        .collect();
-    let mut out = (Vec::with_capacity(w * h), Vec::with_capacity(w * h), Vec::with_capacity(w * h));
-    for (p, x, k) in px {
-        out.0.push(p);
-        out.1.push(x);
-        out.2.push(k);
+/// The prior's residual at `pose` (rotation vector of the change in pixel angles, camera
+/// displacement in the prior's frame in pixel footprints).
+fn prior_residual(p: &PosePrior, pose: DMat4, angle_px: f64, foot_px: f64) -> [f64; 6] {
+    let rel = p.to_world.inverse() * pose;
+    let q = glam::DQuat::from_mat4(&rel);
+    let (axis, mut ang) = q.to_axis_angle();
+    if ang > std::f64::consts::PI {
+        ang -= 2.0 * std::f64::consts::PI;
     }
-    // a pixel whose neighbours see another surface straddles an edge: its photo is the mean over
-    // the pixel (box filter), so is its prediction (EDGE_SS × EDGE_SS stratified rays; none when
-    // a part of the pixel has no prediction). One centre ray would put the edge of the
-    // prediction on the pixel grid, up to half a pixel from where the photo has it.
-    // (Edges whose two sides predict within 2 % of each other, e.g. the facets of a tessellated
-    // sphere, are left point-sampled: their offset is small and they are many.)
-    let (keys, pc) = (&out.2, &out.0);
-    let same = |i: usize, j: usize| match (keys[i], keys[j]) {
-        (Some((a, na)), Some((b, nb))) => {
-            (a == b && na.dot(nb) > 0.999) || (pc[i] - pc[j]).abs() <= 0.02 * pc[i].abs().max(pc[j].abs())
-        }
-        (None, None) => true,
-        _ => false,
-    };
-    let edge: Vec<usize> = (0..w * h)
-        .filter(|&i| {
-            let (x, y) = (i % w, i / w);
-            (x > 0 && !same(i, i - 1))
-                || (x + 1 < w && !same(i, i + 1))
-                || (y > 0 && !same(i, i - w))
-                || (y + 1 < h && !same(i, i + w))
-        })
-        .collect();
-    let n = EDGE_SS;
-    let sub: Vec<f32> = edge
-        .par_iter()
-        .map(|&i| {
-            let mut acc = 0.0f32;
-            for k in 0..n * n {
-                let c = Vec2::new(
-                    (i % w) as f32 + ((k % n) as f32 + 0.5) / n as f32,
-                    (i / w) as f32 + ((k / n) as f32 + 0.5) / n as f32,
-                );
-                match scene.intersect(&cam.generate_ray(c)).and_then(|si| predict(&si)) {
-                    Some(v) => acc += v,
-                    None => return f32::NAN,
-                }
-            }
-            acc / (n * n) as f32
-        })
-        .collect();
-    let mut mixed = vec![false; w * h];
-    for (&i, v) in edge.iter().zip(sub) {
-        out.0[i] = v;
-        mixed[i] = true;
-    }
-    Prediction { p: out.0, hits: out.1, keys: out.2, mixed }
+    let w = axis * ang / (angle_px * p.sigma_px);
+    let t = rel.w_axis.truncate() / (foot_px * p.sigma_px);
+    [w.x, w.y, w.z, t.x, t.y, t.z]
 }
 
-/// Rays per side of a pixel at an edge of the prediction.
-const EDGE_SS: usize = 4;
+/// Normal equations of the prior over the first `n` step parameters at `pose` (step applied
+/// with [`compose_about`] about `pivot`), by central differences: `(JᵀJ, Jᵀr)`.
+fn prior_system(
+    p: &PosePrior,
+    pose: DMat4,
+    pivot: DVec3,
+    n: usize,
+    angle_px: f64,
+    foot_px: f64,
+) -> (Vec<Vec<f64>>, Vec<f64>) {
+    let r0 = prior_residual(p, pose, angle_px, foot_px);
+    let cols: Vec<[f64; 6]> = (0..n)
+        .map(|c| {
+            // 1e-6 rad, or as far as that angle moves the camera at the mean depth
+            let eps = if c < 3 { 1e-6 } else { 1e-6 * foot_px / angle_px };
+            let step = |sgn: f64| {
+                let mut v = [0.0; 6];
+                v[c] = sgn * eps;
+                let m =
+                    compose_about(pose, DVec3::new(v[0], v[1], v[2]), DVec3::new(v[3], v[4], v[5]), pivot);
+                prior_residual(p, m, angle_px, foot_px)
+            };
+            let (a, b) = (step(1.0), step(-1.0));
+            let mut col = [0.0; 6];
+            for i in 0..6 {
+                col[i] = (a[i] - b[i]) / (2.0 * eps);
+            }
+            col
+        })
+        .collect();
+    let h = (0..n).map(|a| (0..n).map(|b| (0..6).map(|i| cols[a][i] * cols[b][i]).sum()).collect()).collect();
+    let g = (0..n).map(|a| (0..6).map(|i| cols[a][i] * r0[i]).sum()).collect();
+    (h, g)
+}
 
 /// Derivative of the film position of camera-space point `q` with respect to the camera-frame
 /// pose change `(ω, δ)`: rows px, py; columns ω (3), δ (3).
@@ -260,21 +238,25 @@ pub fn projection_jacobian(q: DVec3, tan_x: f64, tan_y: f64, w: f64, h: f64) -> 
     j
 }
 
-struct Level {
-    w: usize,
-    h: usize,
-    y: Vec<f32>,
+/// One coarse-to-fine level: the blurred photo (or prediction) luminance.
+pub(super) struct Level {
+    /// Width.
+    pub(super) w: usize,
+    /// Height.
+    pub(super) h: usize,
+    /// Luminance per pixel (NaN = undefined).
+    pub(super) y: Vec<f32>,
 }
 
 impl Level {
-    fn at(&self, x: i64, y: i64) -> f32 {
+    pub(super) fn at(&self, x: i64, y: i64) -> f32 {
         if x < 0 || y < 0 || x >= self.w as i64 || y >= self.h as i64 {
             return f32::NAN;
         }
         self.y[y as usize * self.w + x as usize]
     }
     /// Central-difference gradient at pixel (x, y).
-    fn grad(&self, x: i64, y: i64) -> Option<(f64, f64)> {
+    pub(super) fn grad(&self, x: i64, y: i64) -> Option<(f64, f64)> {
         let gx = 0.5 * (self.at(x + 1, y) - self.at(x - 1, y));
         let gy = 0.5 * (self.at(x, y + 1) - self.at(x, y - 1));
         (gx.is_finite() && gy.is_finite()).then_some((gx as f64, gy as f64))
@@ -350,7 +332,7 @@ fn robust_scale(rows: &[(f64, [f64; 7])]) -> f64 {
     1.4826 * *m
 }
 
-fn huber(r: f64, c: f64) -> f64 {
+pub(super) fn huber(r: f64, c: f64) -> f64 {
     if r.abs() <= c { 1.0 } else { c / r.abs() }
 }
 
@@ -358,131 +340,6 @@ fn huber(r: f64, c: f64) -> f64 {
 fn cost(rows: &[(f64, [f64; 7])], c: f64) -> f64 {
     rows.iter().map(|&(r, _)| if r.abs() <= c { 0.5 * r * r } else { c * (r.abs() - 0.5 * c) }).sum::<f64>()
         / rows.len().max(1) as f64
-}
-
-/// Gauss–Newton normal equations of the *geometric edges* of one view (camera frame: rotation
-/// vector, translation; residuals relative to the mean prediction). See [`edge_system`].
-#[derive(Clone, Debug)]
-pub struct EdgeSystem {
-    /// `Σ w eᵀe` (6 × 6).
-    pub h: [[f64; 6]; 6],
-    /// `Σ w r eᵀ`.
-    pub g: [f64; 6],
-    /// Pixels with a geometric edge in their blur window.
-    pub pixels: usize,
-}
-
-/// Gradient of `p` (NaN = undefined) from neighbours on the same surface only (central
-/// difference, one-sided where one neighbour is on another surface; NaN where none is, and at
-/// the `mixed` pixels, which see two).
-fn within_surface_gradient(
-    p: &[f32],
-    keys: &[SurfaceKey],
-    mixed: &[bool],
-    w: usize,
-    h: usize,
-) -> (Vec<f32>, Vec<f32>) {
-    let same = |i: usize, j: usize| match (keys[i], keys[j]) {
-        (Some((a, na)), Some((b, nb))) => a == b && na.dot(nb) > 0.999 && p[j].is_finite() && !mixed[j],
-        _ => false,
-    };
-    (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            if !p[i].is_finite() || mixed[i] {
-                return (f32::NAN, f32::NAN);
-            }
-            let (x, y) = (i % w, i / w);
-            let d = |lo: Option<usize>, hi: Option<usize>| {
-                let lo = lo.filter(|&j| same(i, j));
-                let hi = hi.filter(|&j| same(i, j));
-                match (lo, hi) {
-                    (Some(l), Some(r)) => 0.5 * (p[r] - p[l]),
-                    (Some(l), None) => p[i] - p[l],
-                    (None, Some(r)) => p[r] - p[i],
-                    (None, None) => f32::NAN,
-                }
-            };
-            let gx = d((x > 0).then(|| i - 1), (x + 1 < w).then_some(i + 1));
-            let gy = d((y > 0).then(|| i - w), (y + 1 < h).then_some(i + w));
-            (gx, gy)
-        })
-        .unzip()
-}
-
-/// Normal equations of the residual of view `cam` (blurred photo `lv` at `sigma`, scale `s`)
-/// for a motion under which the *textures* of the prediction move with the view and only its
-/// geometric edges (changes of shape or plane) stay: the Jacobian of a pixel is
-/// `s · ∇P_edge · ∂p/∂θ`, with `∇P_edge` the gradient of the blurred prediction minus the blur
-/// of its gradient within each surface. This is the motion of all views together (their
-/// textures shift alike), which only the geometry constrains.
-fn edge_system(
-    lv: &Level,
-    scene: &Scene,
-    cam: &Camera,
-    predict: &(dyn Fn(&SurfaceInteraction) -> Option<f32> + Sync),
-    sigma: f64,
-    scale: f64,
-) -> EdgeSystem {
-    let (w, h) = (lv.w, lv.h);
-    let Prediction { p, hits, keys, mixed } = render_prediction(scene, cam, predict);
-    let (pb, sup) = blur(&p, w, h, sigma);
-    let (gx0, gy0) = within_surface_gradient(&p, &keys, &mixed, w, h);
-    let (gxt, gyt) = (blur(&gx0, w, h, sigma).0, blur(&gy0, w, h, sigma).0);
-    let pl = Level { w, h, y: pb };
-    let to_cam = cam.to_world.as_dmat4().inverse();
-    let (tx, ty) = (cam.tan_half_x as f64, cam.tan_half_y as f64);
-    let rows: Vec<(f64, [f64; 6], f64, bool)> = (0..w * h)
-        .into_par_iter()
-        .filter_map(|i| {
-            let (pv, xw) = (pl.y[i], hits[i]?);
-            if !pv.is_finite() || sup[i] < 0.99 {
-                return None;
-            }
-            let (x, y) = ((i % w) as i64, (i / w) as i64);
-            let yv = lv.at(x, y);
-            if !yv.is_finite() {
-                return None;
-            }
-            let (px, py) = pl.grad(x, y)?;
-            let t = |g: f32| if g.is_finite() { g as f64 } else { 0.0 };
-            let (ex, ey) = (px - t(gxt[i]), py - t(gyt[i]));
-            let q = to_cam.transform_point3(xw);
-            if q.z <= 0.0 {
-                return None;
-            }
-            let jp = projection_jacobian(q, tx, ty, w as f64, h as f64);
-            let mut e = [0.0; 6];
-            for c in 0..6 {
-                e[c] = scale * (ex * jp[0][c] + ey * jp[1][c]);
-            }
-            let edge = ex.hypot(ey) > 1e-3 * (pv as f64).abs();
-            Some((yv as f64 - scale * pv as f64, e, pv as f64, edge))
-        })
-        .collect();
-    let mut out = EdgeSystem { h: [[0.0; 6]; 6], g: [0.0; 6], pixels: 0 };
-    if rows.is_empty() {
-        return out;
-    }
-    let mean = rows.iter().map(|r| r.2).sum::<f64>() / rows.len() as f64;
-    // Huber scale from all pixels, as in the alignment (from the edge pixels alone, the exact
-    // views of the synthetic room drifted by 0.03°: the predictions extended over the edge
-    // bands carry errors of their own there)
-    let mut a: Vec<f64> = rows.iter().map(|r| r.0.abs()).collect();
-    let k = a.len() / 2;
-    let c = 1.345 * 1.4826 * *a.select_nth_unstable_by(k, f64::total_cmp).1;
-    let norm = 1.0 / (mean * mean).max(1e-60);
-    for (r, e, _, edge) in &rows {
-        let wgt = huber(*r, c.max(1e-12)) * norm;
-        for a in 0..6 {
-            out.g[a] += wgt * e[a] * r;
-            for b in 0..6 {
-                out.h[a][b] += wgt * e[a] * e[b];
-            }
-        }
-        out.pixels += *edge as usize;
-    }
-    out
 }
 
 /// Aligns the photo luminance `photo` (row-major, `cam.width × cam.height`, NaN = unusable) to
@@ -502,6 +359,7 @@ pub fn align_view(
     let (mut rms_before, mut rms_after, mut pixels) = (f64::NAN, f64::NAN, 0);
     let mut edges = None;
     let n_par = if s.dof == PoseDof::Full { 6 } else { 3 };
+    let (mut pivot, mut angle_px, mut foot_px): (Option<DVec3>, f64, f64) = (None, 1.0, 1.0);
     let rel = |rows: &[(f64, [f64; 7])], mean: f64| {
         let c = robust_scale(rows);
         (rows.iter().map(|r| r.0 * r.0 * huber(r.0, 1.345 * c)).sum::<f64>() / rows.len().max(1) as f64)
@@ -547,19 +405,38 @@ pub fn align_view(
                 scale = s1;
             }
         }
+        if pivot.is_none() {
+            // the pivot and the pixel scales from the first level's mean depth
+            let d = lin.depth.max(1e-9);
+            angle_px = 2.0 * cam.tan_half_x as f64 / w as f64;
+            foot_px = angle_px * d;
+            pivot = Some(if n_par == 6 && s.pivot_at_scene { DVec3::new(0.0, 0.0, d) } else { DVec3::ZERO });
+        }
+        let c_piv = pivot.unwrap_or_default();
+        let jrow = |j: &[f64; 7]| pivot_columns(j, c_piv);
+        // the photo's residuals are independent per blur footprint
+        let kappa = (4.0 * std::f64::consts::PI * sigma * sigma).max(1.0);
+        let prior_cost = |pose: DMat4, rows: &[(f64, [f64; 7])], noise: f64| {
+            s.prior.map_or(0.0, |p| {
+                let r = prior_residual(&p, pose, angle_px, foot_px);
+                0.5 * noise * noise * kappa * r.iter().map(|x| x * x).sum::<f64>() / rows.len().max(1) as f64
+            })
+        };
         let mut lambda = 1e-3;
         converged = false;
         let mut it = 0;
         while it < s.max_iterations {
             it += 1;
             iterations += 1;
-            let c = 1.345 * robust_scale(&lin.rows).max(1e-12);
+            let noise = robust_scale(&lin.rows).max(1e-12);
+            let c = 1.345 * noise;
             // normal equations over the active parameters (pose + scale)
             let idx: Vec<usize> = (0..n_par).chain(std::iter::once(6)).collect();
             let k = idx.len();
             let mut jtj = nalgebra::DMatrix::<f64>::zeros(k, k);
             let mut jtr = nalgebra::DVector::<f64>::zeros(k);
             for (r, j) in &lin.rows {
+                let j = &jrow(j);
                 let wgt = huber(*r, c);
                 for a in 0..k {
                     let ja = j[idx[a]];
@@ -574,7 +451,17 @@ pub fn align_view(
                     jtj[(a, b)] = jtj[(b, a)];
                 }
             }
-            let c0 = cost(&lin.rows, c);
+            if let Some(p) = &s.prior {
+                let (hp, gp) = prior_system(p, pose, c_piv, n_par, angle_px, foot_px);
+                let wp = noise * noise * kappa;
+                for a in 0..n_par {
+                    jtr[a] += wp * gp[a];
+                    for b in 0..n_par {
+                        jtj[(a, b)] += wp * hp[a][b];
+                    }
+                }
+            }
+            let c0 = cost(&lin.rows, c) + prior_cost(pose, &lin.rows, noise);
             let mut accepted = false;
             for _ in 0..8 {
                 let mut m = jtj.clone();
@@ -588,10 +475,12 @@ pub fn align_view(
                 let d = ch.solve(&(-&jtr));
                 let omega = DVec3::new(d[0], d[1], d[2]);
                 let delta = if n_par == 6 { DVec3::new(d[3], d[4], d[5]) } else { DVec3::ZERO };
-                let new_pose = compose(pose, omega, delta);
+                let new_pose = compose_about(pose, omega, delta, c_piv);
                 let new_scale = scale + d[k - 1];
                 let cand = eval(new_pose, new_scale);
-                if cand.rows.len() >= 50 && cost(&cand.rows, c) <= c0 {
+                if cand.rows.len() >= 50
+                    && cost(&cand.rows, c) + prior_cost(new_pose, &cand.rows, noise) <= c0
+                {
                     pose = new_pose;
                     scale = new_scale;
                     lin = cand;
@@ -627,7 +516,7 @@ pub fn align_view(
 pub(crate) mod tests {
     use super::*;
     use opal::geometry::TriangleMesh;
-    use opal::math::{Mat4, Vec3};
+    use opal::math::{Mat4, Vec2, Vec3};
     use opal::scene::desc::{BsdfDesc, SceneDesc, SensorDesc, ShapeDesc, TextureDesc};
     use opal::spectrum::Spectrum;
 
@@ -762,6 +651,39 @@ pub(crate) mod tests {
                     (fd - j[r][c]).abs() < 1e-4 * (1.0 + fd.abs()),
                     "row {r} col {c}: {fd} vs {}",
                     j[r][c]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn pivot_jacobian_matches_finite_differences() {
+        let cam = camera(Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.0, 0.3, -1.0), 64);
+        let x = DVec3::new(0.3, 0.2, -0.9);
+        let m = cam.to_world.as_dmat4();
+        let c = DVec3::new(0.1, -0.2, 3.5);
+        let (tx, ty) = (cam.tan_half_x as f64, cam.tan_half_y as f64);
+        let proj = |m: DMat4| {
+            let q = m.inverse().transform_point3(x);
+            [(1.0 - q.x / q.z / tx) * 32.0, (1.0 - q.y / q.z / ty) * 32.0]
+        };
+        let q = m.inverse().transform_point3(x);
+        let j = projection_jacobian(q, tx, ty, 64.0, 64.0).map(|r| pivot_columns(&r, c));
+        let e = 1e-6;
+        for col in 0..6 {
+            let mut v = [0.0; 6];
+            v[col] = e;
+            let at = |s: f64| {
+                let (w, d) = (DVec3::new(v[0], v[1], v[2]) * s, DVec3::new(v[3], v[4], v[5]) * s);
+                proj(compose_about(m, w, d, c))
+            };
+            let (p1, p0) = (at(1.0), at(-1.0));
+            for r in 0..2 {
+                let fd = (p1[r] - p0[r]) / (2.0 * e);
+                assert!(
+                    (fd - j[r][col]).abs() < 1e-4 * (1.0 + fd.abs()),
+                    "row {r} col {col}: {fd} vs {}",
+                    j[r][col]
                 );
             }
         }
