@@ -18,12 +18,19 @@
 //! ≤ 0.5/√walks), and the tabulated values are `eval` with [`MS_EVAL_WALKS`] walks from each
 //! end (the order-1 part exact, orders ≥ 2 an unbiased, deterministic estimate).
 //! The Zemax file is built as a [`BsdfTable`] ([`zemax_table`]) and printed by
-//! [`crate::scatter::zemax::write`].
+//! [`crate::scatter::zemax::write`]; the LightTools file (both sides, R and T) by
+//! [`lighttools`].
+//! A dotted face ([`FaceModel::Dotted`], the fit's dotted model) is exported as the face that
+//! was fitted: `coverage` × the dots' BSDF plus the polished land's specular spike
+//! ([`specular_fractions`]), which the TIS includes, the CSV lists in its TIS table and the
+//! tables spread over the cell of their specular node.
 //!
 //! Tests: `tests` below (energy: R + T ≤ 1 and ≈ 1 for a smooth-ish surface, the Zemax file's
 //! structure, an exported `.BSDF` read back reproduces the face at every tabulated direction
 //! to the printed precision, the multiple-scattering export keeps energy and differs from the
 //! single-scattering one).
+
+pub mod lighttools;
 
 use crate::scatter::zemax::{
     Block, BsdfTable, Channel, ChannelData, Precision, ScatterType, SpectralContent, Symmetry,
@@ -55,7 +62,7 @@ impl LightSide {
             LightSide::MaterialToAir => "material_to_air",
         }
     }
-    fn sign(self) -> f32 {
+    pub(crate) fn sign(self) -> f32 {
         match self {
             LightSide::AirToMaterial => 1.0,
             LightSide::MaterialToAir => -1.0,

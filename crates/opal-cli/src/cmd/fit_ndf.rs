@@ -10,6 +10,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use opal::bsdf::microfacet::Ndfs;
 use opal::gonio::{Face, Side};
+use opal_inverse::export::lighttools::lighttools_bsdf;
 use opal_inverse::export::{FaceModel, LightSide, bsdf_csv, ndf_table, zemax_bsdf};
 use opal_inverse::measured::Measured;
 use opal_inverse::ndf_fit::{
@@ -357,6 +358,10 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
             write_bytes_atomic(&out.join(format!("{}_{kind}.BSDF", side.label())), z.as_bytes())?;
         }
     }
+    // both sides, R and T in one LightTools BSDF text file (global angles, full azimuth)
+    let lt_az: Vec<f64> = (0..36).map(|i| i as f64 * 10.0).collect();
+    let lt = lighttools_bsdf(&bsdf, &aois, &lt_az, &rad, &comment);
+    write_bytes_atomic(&out.join("face_lighttools.txt"), lt.as_bytes())?;
     // the fitted face as a PLATE.toml fragment `opal gonio simulate` loads
     let face_toml = format!(
         "# fitted by opal fit-ndf from {}\n[plate]\nior = {}\nthickness_mm = {}\nentry = \"{}\"\n\
