@@ -2,7 +2,9 @@
 //! in α (coverage fixed at the truth) of the Mitsuba 3 curves against the same profile of Opal
 //! curves of the same plate and detectors (synthetic, 10⁶ photons), and the fit of both.
 //! If the Mitsuba profile's minimum is shifted and the Opal one's is not, the bias is a model
-//! difference between the two simulators, not the fit. Run:
+//! difference between the two simulators, not the fit. Measured (docs/fit-ndf.md): at 200 000
+//! photons both data sets fit to α 0.4097 (the fit's own noise dominates); at 800 000 Opal's
+//! −1.3 %, Mitsuba's +2.1 %. Run:
 //! cargo test -p opal-inverse --test hemisphere_bias --release -- --ignored --nocapture
 
 use opal::gonio::{Beam, Face, Plate, Scattering};
@@ -59,22 +61,33 @@ fn problems(photons: u64) -> (Problem, Problem) {
     (mitsuba, opal)
 }
 
-/// The Opal-synthetic data fitted with 4× the photons (800 000): if the error of the
-/// 200 000-photon fit is the fit's own Monte-Carlo noise or a finite-photon bias of the
-/// objective, it shrinks here.
-#[test]
-#[ignore]
-fn hemisphere_smooth_entry_bias_more_photons() {
-    let (_, opal) = problems(800_000);
+fn fit_800k(label: &str, pr: &Problem) {
     let t0 = std::time::Instant::now();
-    let r = fit(&opal, &FitOptions::default()).unwrap();
+    let r = fit(pr, &FitOptions::default()).unwrap();
     let b = r.best();
     eprintln!(
-        "opal 800k fit: {} rms/noise {:.3} ({:.1} s)",
+        "{label} 800k fit: {} rms/noise {:.3} ({:.1} s)",
         b.fit.model.describe(),
         b.check.rms / b.check.noise,
         t0.elapsed().as_secs_f64()
     );
+}
+
+/// The Opal-synthetic data fitted with 4× the photons (800 000): if the error of the
+/// 200 000-photon fit is the fit's own Monte-Carlo noise or a finite-photon bias of the
+/// objective, it changes here. Measured: α 0.3947 (−1.3 %), coverage 0.2492.
+#[test]
+#[ignore]
+fn hemisphere_smooth_entry_bias_more_photons_opal() {
+    fit_800k("opal", &problems(800_000).1);
+}
+
+/// The Mitsuba curves fitted with 800 000 photons. Measured: α 0.4085 (+2.1 %), coverage
+/// 0.2596 (the 200 000-photon fit of both data sets: α 0.4097; docs/fit-ndf.md).
+#[test]
+#[ignore]
+fn hemisphere_smooth_entry_bias_more_photons_mitsuba() {
+    fit_800k("mitsuba", &problems(800_000).0);
 }
 
 #[test]

@@ -129,12 +129,20 @@ pub struct FitOutcome {
     pub report: FitReport,
 }
 
-/// Reads the measured files (CSV or Zemax `.BSDF` by extension) and merges them.
+/// Reads the measured files (Zemax `.BSDF` by extension, LightTools BSDF text by its first
+/// line `Symmetry Asymmetric`, else CSV) and merges them.
 pub fn read_measured(paths: &[PathBuf]) -> Result<Measured> {
     let mut parts = Vec::new();
     for p in paths {
+        let lighttools = || {
+            std::fs::read(p).is_ok_and(|b| {
+                opal_inverse::scatter::lighttools::is_lighttools_text(&String::from_utf8_lossy(&b))
+            })
+        };
         let m = if zemax::is_zemax_path(p) {
             zemax::read(p).and_then(|t| t.to_measured(p))
+        } else if lighttools() {
+            opal_inverse::scatter::lighttools::read(p).and_then(|t| t.to_measured(p))
         } else {
             Measured::read(p)
         };

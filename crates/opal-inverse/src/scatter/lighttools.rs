@@ -41,7 +41,9 @@
 //! their messages); `crate::export` tests (the exported face of both sides read back).
 
 use super::zemax::{Channel, Precision, ScatterType, SpectralContent, Tok, Tokens, angle_list};
+use crate::measured::{Measured, Row};
 use opal::Error;
+use opal::gonio::Side;
 use std::fmt::Write;
 use std::path::Path;
 
@@ -101,6 +103,73 @@ impl LtTable {
             b.side == side && b.scatter_type == scatter_type && b.aoi_deg == aoi_deg && b.channel == channel
         })
     }
+}
+
+impl LtTable {
+    /// Plane-of-incidence curves of the `Side Front` blocks (the lit side of a plate
+    /// measurement) for [`crate::ndf_fit`]: BRDF → side R, BTDF → side T; the azimuth row
+    /// `POI + 180°` (forward, the specular side) gives detector angle `p = +radial`, the row
+    /// `POI` gives `p = −radial` (the gonio's signed angle, specular at `p = +AOI`); value =
+    /// BSDF · cos p. XYZ files are fitted on `TrisY`. Errors (naming `path`): no Front block,
+    /// a block without its forward or backward azimuth row.
+    pub fn to_measured(&self, path: &Path) -> opal::Result<Measured> {
+        let what = |w: &str| format!("{}: {w}", path.display());
+        let nr = self.radial_deg.len();
+        let row = |deg: f64| {
+            let d = deg.rem_euclid(360.0);
+            self.azimuth_deg.iter().position(|a| (a - d).abs() < 1e-9 || (a - d).abs() > 360.0 - 1e-9)
+        };
+        let mut rows = Vec::new();
+        for b in self.blocks.iter().filter(|b| {
+            b.side == FaceSide::Front && matches!(b.channel, Channel::Monochrome | Channel::TristimulusY)
+        }) {
+            let (fwd, back) = (row(b.poi_deg + 180.0), row(b.poi_deg));
+            let Some(fwd) = fwd else {
+                return Err(Error::invalid(
+                    what("ScatterAzimuth"),
+                    format!(
+                        "no azimuth {}° row (POI + 180°, the specular side)",
+                        (b.poi_deg + 180.0).rem_euclid(360.0)
+                    ),
+                ));
+            };
+            let side = match b.scatter_type {
+                ScatterType::Brdf => Side::R,
+                ScatterType::Btdf => Side::T,
+            };
+            let mut push = |p: f64, f: f64| {
+                if p.abs() < 90.0 {
+                    rows.push(Row {
+                        incidence_deg: b.aoi_deg,
+                        side,
+                        detector_deg: p,
+                        azimuth_deg: 0.0,
+                        value: f * p.to_radians().cos(),
+                        stderr: 0.0,
+                    });
+                }
+            };
+            for (k, &r) in self.radial_deg.iter().enumerate() {
+                push(r, b.values[fwd * nr + k]);
+            }
+            if let Some(back) = back {
+                for (k, &r) in self.radial_deg.iter().enumerate().filter(|(_, r)| **r > 0.0) {
+                    push(-r, b.values[back * nr + k]);
+                }
+            }
+        }
+        if rows.is_empty() {
+            return Err(Error::invalid(what("blocks"), "no Side Front block with Monochrome or TrisY data"));
+        }
+        Measured::from_rows(path, rows, false, false)
+    }
+}
+
+/// Whether `text` looks like a LightTools BSDF file: its first token outside comments is
+/// `Symmetry` and the second `Asymmetric` (any case).
+pub fn is_lighttools_text(text: &str) -> bool {
+    let mut t = text.lines().filter(|l| !l.trim_start().starts_with('#')).flat_map(|l| l.split_whitespace());
+    matches!((t.next(), t.next()), (Some(a), Some(b)) if a.eq_ignore_ascii_case("Symmetry") && b.eq_ignore_ascii_case("Asymmetric"))
 }
 
 /// Writes a table as LightTools BSDF text; every line of `comment` becomes a `#` line.
@@ -345,6 +414,32 @@ mod tests {
         assert_eq!(b.values[3], 0.4);
         let b = t.find(FaceSide::Back, ScatterType::Btdf, 0.0, Channel::Monochrome).unwrap();
         assert_eq!((b.poi_deg, b.wavelength_nm, b.tis, b.values[5]), (0.0, None, 0.9, 6.0));
+    }
+
+    /// The plane-of-incidence curves of the hand-made file: the Front BRDF block at AOI 30°,
+    /// POI 90°: forward row 270° is absent there, so it is an error; with azimuths 90° and 270°
+    /// the forward row gives p = +radial, the POI row p = −radial, value × cos p.
+    #[test]
+    fn plane_of_incidence_curves() {
+        let t = parse(HAND, Path::new("hand.txt")).unwrap();
+        let e = t.to_measured(Path::new("hand.txt")).unwrap_err().to_string();
+        assert!(e.contains("hand.txt") && e.contains("270"), "{e}");
+        let mut t = t;
+        t.azimuth_deg = vec![90.0, 270.0];
+        t.blocks.truncate(1);
+        t.blocks[0].values = vec![1.0, 2.0, 3.0, 4.0]; // row 90°: 1, 2; row 270°: 3, 4
+        let m = t.to_measured(Path::new("hand.txt")).unwrap();
+        let c = &m.curves[0];
+        assert_eq!((c.side, c.incidence), (Side::R, 30f64.to_radians()));
+        let pts: Vec<(f64, f64)> =
+            c.detector.iter().zip(&c.value).map(|(d, v)| (d.to_degrees(), *v)).collect();
+        let want =
+            [(-45.0, 2.0 * 45f64.to_radians().cos()), (0.0, 3.0), (45.0, 4.0 * 45f64.to_radians().cos())];
+        assert_eq!(pts.len(), 3, "{pts:?}");
+        for ((d, v), (wd, wv)) in pts.iter().zip(want) {
+            assert!((d - wd).abs() < 1e-9 && (v - wv).abs() < 1e-12, "{pts:?}");
+        }
+        assert!(is_lighttools_text(HAND) && !is_lighttools_text("Symmetry PlaneSymmetrical\n"));
     }
 
     #[test]
