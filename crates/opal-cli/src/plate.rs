@@ -79,9 +79,12 @@ pub struct PlateSpec {
 #[derive(Deserialize, Debug, Clone, Default)]
 #[serde(deny_unknown_fields)]
 pub struct FaceSpec {
-    /// `polished` or `rough`.
+    /// `polished`, `rough` or `dotted` (rough dots, given by the NDF keys, on a fraction
+    /// `coverage` of a polished face).
     #[serde(rename = "type")]
     pub kind: String,
+    /// Fraction of a `dotted` face covered by the rough dots, in [0, 1].
+    pub coverage: Option<f64>,
     /// NDF family (`ggx`, `beckmann`) or FAMILY:ALPHA.
     pub ndf: Option<String>,
     /// Roughness α.
@@ -232,12 +235,12 @@ pub fn parse_scattering(s: &str, what: &str) -> Result<Scattering> {
 fn face(spec: &FaceSpec, what: &str, ndf_flag: Option<&str>, scat_flag: Option<&str>) -> Result<Face> {
     match spec.kind.as_str() {
         "polished" | "smooth" => {
-            if spec.ndf.is_some() || spec.alpha.is_some() {
-                bail!("{what}: a polished face takes no ndf/alpha");
+            if spec.ndf.is_some() || spec.alpha.is_some() || spec.coverage.is_some() {
+                bail!("{what}: a polished face takes no ndf/alpha/coverage");
             }
             Ok(Face::Polished)
         }
-        "rough" => {
+        "rough" | "dotted" => {
             let ndf = match (ndf_flag, &spec.ndf) {
                 (Some(f), _) => parse_ndf(f, None, "--ndf")?,
                 (None, Some(_)) => face_ndf(spec, what)?,
@@ -248,9 +251,17 @@ fn face(spec: &FaceSpec, what: &str, ndf_flag: Option<&str>, scat_flag: Option<&
                 (None, Some(s)) => parse_scattering(s, &format!("{what}.scattering"))?,
                 (None, None) => Scattering::Single,
             };
-            Ok(Face::Rough { ndf, scattering })
+            match (spec.kind.as_str(), spec.coverage) {
+                ("rough", None) => Ok(Face::Rough { ndf, scattering }),
+                ("rough", Some(_)) => bail!("{what}: coverage is for type = \"dotted\""),
+                (_, Some(f)) if f.is_finite() && (0.0..=1.0).contains(&f) => {
+                    Ok(Face::dotted(f, ndf, scattering))
+                }
+                (_, Some(f)) => bail!("{what}.coverage: must be in [0, 1], got {f}"),
+                (_, None) => bail!("{what}: a dotted face needs coverage (the rough fraction, e.g. 0.3)"),
+            }
         }
-        k => bail!("{what}.type: unknown face type {k:?} (polished, rough)"),
+        k => bail!("{what}.type: unknown face type {k:?} (polished, rough, dotted)"),
     }
 }
 
@@ -285,19 +296,19 @@ pub fn build_config(file: &PlateFile, a: &PlateOverrides) -> Result<Config> {
     let front = face(
         &front_spec,
         "plate.front",
-        a.ndf.as_deref().filter(|_| front_spec.kind == "rough"),
+        a.ndf.as_deref().filter(|_| front_spec.kind != "polished"),
         a.scattering.as_deref(),
     )?;
     let back = face(
         &back_spec,
         "plate.back",
-        a.ndf.as_deref().filter(|_| back_spec.kind == "rough"),
+        a.ndf.as_deref().filter(|_| back_spec.kind != "polished"),
         a.scattering.as_deref(),
     )?;
     let entry = a.entry.clone().or(p.entry.clone());
     let lit_back = match (&entry, &p.lit) {
         (Some(e), _) => {
-            let (fr, br) = (matches!(front, Face::Rough { .. }), matches!(back, Face::Rough { .. }));
+            let (fr, br) = (front.is_rough(), back.is_rough());
             if fr == br {
                 bail!("entry = {e:?} needs exactly one rough face (use plate.lit = \"front\"|\"back\")");
             }

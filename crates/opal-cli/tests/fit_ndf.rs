@@ -150,6 +150,7 @@ fn small_fit_writes_outputs() {
         "air_to_material_btdf.BSDF",
         "material_to_air_brdf.BSDF",
         "material_to_air_btdf.BSDF",
+        "face_lighttools.txt",
         "face.obsdf",
         "chessboard.png",
     ] {

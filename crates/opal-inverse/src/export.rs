@@ -18,12 +18,19 @@
 //! ≤ 0.5/√walks), and the tabulated values are `eval` with [`MS_EVAL_WALKS`] walks from each
 //! end (the order-1 part exact, orders ≥ 2 an unbiased, deterministic estimate).
 //! The Zemax file is built as a [`BsdfTable`] ([`zemax_table`]) and printed by
-//! [`crate::scatter::zemax::write`].
+//! [`crate::scatter::zemax::write`]; the LightTools file (both sides, R and T) by
+//! [`lighttools`].
+//! A dotted face ([`FaceModel::Dotted`], the fit's dotted model) is exported as the face that
+//! was fitted: `coverage` × the dots' BSDF plus the polished land's specular spike
+//! ([`specular_fractions`]), which the TIS includes, the CSV lists in its TIS table and the
+//! tables spread over the cell of their specular node.
 //!
 //! Tests: `tests` below (energy: R + T ≤ 1 and ≈ 1 for a smooth-ish surface, the Zemax file's
 //! structure, an exported `.BSDF` read back reproduces the face at every tabulated direction
 //! to the printed precision, the multiple-scattering export keeps energy and differs from the
 //! single-scattering one).
+
+pub mod lighttools;
 
 use crate::scatter::zemax::{
     Block, BsdfTable, Channel, ChannelData, Precision, ScatterType, SpectralContent, Symmetry,
@@ -55,7 +62,7 @@ impl LightSide {
             LightSide::MaterialToAir => "material_to_air",
         }
     }
-    fn sign(self) -> f32 {
+    pub(crate) fn sign(self) -> f32 {
         match self {
             LightSide::AirToMaterial => 1.0,
             LightSide::MaterialToAir => -1.0,
@@ -93,6 +100,15 @@ pub enum FaceModel {
     Single(RoughDielectric),
     /// Multiple scattering on the micro-surface (random walk).
     Multiple(RoughDielectricMs),
+    /// Dotted face (the fit's dotted model, [`opal::bsdf::Dotted`]): rough `dots` on a fraction
+    /// `coverage` of the face, the rest polished. Its BSDF is `coverage · f_dots` plus a specular
+    /// spike of power fractions [`specular_fractions`] in the mirror and refracted directions.
+    Dotted {
+        /// Fraction f ∈ [0, 1] of the face covered by the dots.
+        coverage: f64,
+        /// The dots' face (not itself dotted).
+        dots: Box<FaceModel>,
+    },
 }
 
 impl From<RoughDielectric> for FaceModel {
@@ -121,19 +137,45 @@ impl FaceModel {
         })
     }
 
+    /// The dotted face of the fit: dots with NDF `ndf` (scattering model `scattering`) on a
+    /// fraction `coverage` of a polished face; error unless `coverage` ∈ [0, 1].
+    pub fn dotted(coverage: f64, ndf: Ndfs, ior: f64, scattering: Scattering) -> opal::Result<Self> {
+        if !(coverage.is_finite() && (0.0..=1.0).contains(&coverage)) {
+            return Err(opal::Error::invalid("coverage", format!("must be in [0, 1], got {coverage}")));
+        }
+        Ok(FaceModel::Dotted { coverage, dots: Box::new(Self::new(ndf, ior, scattering)?) })
+    }
+
+    /// The face of a fitted model: [`FaceModel::dotted`] when `coverage` is `Some`, else
+    /// [`FaceModel::new`].
+    pub fn fitted(ndf: Ndfs, ior: f64, scattering: Scattering, coverage: Option<f64>) -> opal::Result<Self> {
+        match coverage {
+            Some(f) => Self::dotted(f, ndf, ior, scattering),
+            None => Self::new(ndf, ior, scattering),
+        }
+    }
+
     /// n_material / n_air.
     pub fn eta(&self) -> f32 {
         match self {
             FaceModel::Single(b) => b.eta,
             FaceModel::Multiple(b) => b.eta,
+            FaceModel::Dotted { dots, .. } => dots.eta(),
         }
     }
 
-    /// `single scattering` or `multiple scattering` (for file comments).
-    pub fn describe(&self) -> &'static str {
+    /// `single scattering` or `multiple scattering` (for file comments), prefixed for a dotted
+    /// face by its coverage.
+    pub fn describe(&self) -> String {
         match self {
-            FaceModel::Single(_) => "single scattering",
-            FaceModel::Multiple(_) => "multiple scattering",
+            FaceModel::Single(_) => "single scattering".into(),
+            FaceModel::Multiple(_) => "multiple scattering".into(),
+            FaceModel::Dotted { coverage, dots } => {
+                format!(
+                    "dotted: {coverage:.4} of the face rough dots ({}), the rest polished",
+                    dots.describe()
+                )
+            }
         }
     }
 
@@ -141,8 +183,22 @@ impl FaceModel {
         let v = match self {
             FaceModel::Single(b) => b.eval(wo, wi, TransportMode::Importance),
             FaceModel::Multiple(b) => b.eval(wo, wi, TransportMode::Importance),
+            FaceModel::Dotted { coverage, dots } => return coverage * dots.eval_importance(wo, wi),
         };
         v.average() as f64
+    }
+}
+
+/// Power fractions (reflected, transmitted) of the face's specular spike (the polished land of
+/// a dotted face: (1 − f)·(F, 1 − F) with the Fresnel reflectance F at `aoi`; total internal
+/// reflection from the material beyond the critical angle); (0, 0) for a rough face.
+pub fn specular_fractions(b: &FaceModel, side: LightSide, aoi: f64) -> (f64, f64) {
+    match b {
+        FaceModel::Dotted { coverage, dots } => {
+            let fr = opal::math::fresnel_dielectric_f64(side.sign() as f64 * aoi.cos(), dots.eta() as f64);
+            ((1.0 - coverage) * fr, (1.0 - coverage) * (1.0 - fr))
+        }
+        _ => (0.0, 0.0),
     }
 }
 
@@ -150,7 +206,8 @@ fn light_dir(side: LightSide, aoi: f64) -> Vec3 {
     Vec3::new(-(aoi.sin() as f32), 0.0, side.sign() * aoi.cos() as f32)
 }
 
-/// Power BSDF f(l → s) (see module docs).
+/// Power BSDF f(l → s) (see module docs); for a dotted face the part without the specular
+/// spike (the spike is [`specular_fractions`]).
 pub fn power_bsdf(b: &FaceModel, side: LightSide, aoi: f64, s: Vec3) -> f64 {
     b.eval_importance(light_dir(side, aoi), s)
 }
@@ -159,6 +216,11 @@ pub fn power_bsdf(b: &FaceModel, side: LightSide, aoi: f64, s: Vec3) -> f64 {
 /// module documentation for how each model integrates it).
 pub fn tis(b: &FaceModel, side: LightSide, aoi: f64) -> (f64, f64) {
     match b {
+        FaceModel::Dotted { coverage, dots } => {
+            let (r, t) = tis(dots, side, aoi);
+            let (sr, st) = specular_fractions(b, side, aoi);
+            (coverage * r + sr, coverage * t + st)
+        }
         FaceModel::Single(_) => tis_quadrature(b, side, aoi),
         FaceModel::Multiple(ms) => {
             let l = light_dir(side, aoi);
@@ -205,10 +267,12 @@ fn tis_quadrature(b: &FaceModel, side: LightSide, aoi: f64) -> (f64, f64) {
 /// Writes the BSDF of both sides as CSV: `light_side,aoi_deg,scatter,theta_s_deg,phi_s_deg,
 /// bsdf` (`scatter` R or T; θs from the normal of the hemisphere the light leaves into; φs from
 /// the plane of incidence, 0 = forward), then one `#`-free summary per (side, aoi) in a second
-/// table `tis` returned separately.
+/// table `tis` returned separately: `tis_R,tis_T,R_plus_T` (spike included) and
+/// `specular_R,specular_T`, the power fractions of a dotted face's specular spike
+/// ([`specular_fractions`], 0 for a rough face), which the `bsdf` values (a density) leave out.
 pub fn bsdf_csv(b: &FaceModel, aois_deg: &[f64], theta_step_deg: f64, phi_step_deg: f64) -> (String, String) {
     let mut out = String::from("light_side,aoi_deg,scatter,theta_s_deg,phi_s_deg,bsdf\n");
-    let mut tis_csv = String::from("light_side,aoi_deg,tis_R,tis_T,R_plus_T\n");
+    let mut tis_csv = String::from("light_side,aoi_deg,tis_R,tis_T,R_plus_T,specular_R,specular_T\n");
     let nt = (90.0 / theta_step_deg).round() as usize;
     let np = (180.0 / phi_step_deg).round() as usize;
     for side in [LightSide::AirToMaterial, LightSide::MaterialToAir] {
@@ -238,7 +302,18 @@ pub fn bsdf_csv(b: &FaceModel, aois_deg: &[f64], theta_step_deg: f64, phi_step_d
                 }
             }
             let (r, t) = tis(b, side, aoi);
-            let _ = writeln!(tis_csv, "{},{},{:.6},{:.6},{:.6}", side.label(), a, r, t, r + t);
+            let (sr, st) = specular_fractions(b, side, aoi);
+            let _ = writeln!(
+                tis_csv,
+                "{},{},{:.6},{:.6},{:.6},{:.6},{:.6}",
+                side.label(),
+                a,
+                r,
+                t,
+                r + t,
+                sr,
+                st
+            );
         }
     }
     (out, tis_csv)
@@ -280,7 +355,9 @@ pub fn scatter_dir(c: Vec3, azimuth_deg: f64, radial_deg: f64) -> Vec3 {
 /// The table of one Zemax `.BSDF` file (`PlaneSymmetrical`, `Monochrome`, one sample rotation
 /// 0°) for one light side and one scatter type: per AOI the TIS and the power BSDF at every
 /// (azimuth, radial) about the specular / refracted direction (0 where that direction is
-/// below the horizon).
+/// below the horizon). A dotted face's specular spike (a delta) is spread over the cap of
+/// half the first radial step around radial 0 ([`spike_cap_deg`]): the radial-0 values get
+/// `spike / (|cos θc| · Ω_cap)`, so the table integrates to the TIS, which includes the spike.
 pub fn zemax_table(
     b: &FaceModel,
     side: LightSide,
@@ -295,11 +372,20 @@ pub fn zemax_table(
             let aoi = a.to_radians();
             let (r, t) = tis(b, side, aoi);
             let c = specular_center(b, side, aoi, transmission);
+            let (sr, st) = specular_fractions(b, side, aoi);
+            let spike = match spike_cap_deg(radials_deg) {
+                Some(rho) if c.z != 0.0 => {
+                    let cap = 2.0 * PI * (1.0 - rho.to_radians().cos());
+                    (if transmission { st } else { sr }) / (c.z.abs() as f64 * cap)
+                }
+                _ => 0.0,
+            };
             let mut values = Vec::with_capacity(azimuths_deg.len() * radials_deg.len());
             for &az in azimuths_deg {
                 for &rd in radials_deg {
                     let s = scatter_dir(c, az, rd);
-                    values.push(if s.z * c.z > 0.0 { power_bsdf(b, side, aoi, s) } else { 0.0 });
+                    let f = if s.z * c.z > 0.0 { power_bsdf(b, side, aoi, s) } else { 0.0 };
+                    values.push(if rd == 0.0 { f + spike } else { f });
                 }
             }
             Block { tis: Some(if transmission { t } else { r }), values }
@@ -315,6 +401,16 @@ pub fn zemax_table(
         azimuth_deg: azimuths_deg.to_vec(),
         radial_deg: radials_deg.to_vec(),
         channels: vec![ChannelData { channel: Channel::Monochrome, blocks }],
+    }
+}
+
+/// Half-angle (degrees) of the cap a specular spike is spread over in a Zemax table: half the
+/// first radial step (1° when radial 0 is the only radial); `None` when the radials do not
+/// start at 0 (the spike then stays in the TIS only).
+pub fn spike_cap_deg(radials_deg: &[f64]) -> Option<f64> {
+    match radials_deg {
+        [first, rest @ ..] if *first == 0.0 => Some(rest.first().map_or(1.0, |next| next / 2.0)),
+        _ => None,
     }
 }
 
@@ -446,5 +542,91 @@ mod tests {
         let c = specular_center(&ms, LightSide::AirToMaterial, 0.0, true);
         let f1 = power_bsdf(&ss, LightSide::AirToMaterial, 0.0, c);
         assert!(v[0] > 0.9 * f1, "ms {} ss {f1}", v[0]);
+    }
+
+    /// The export of a dotted face is the face the goniophotometer simulates: photons sampled
+    /// from [`opal::bsdf::Dotted`] (35 % GGX α = 0.3 dots on a polished land, the area mixture
+    /// the simulator's dotted faces follow) and counted in 1° cones around every tabulated
+    /// direction of the exported `.BSDF` (read back) agree with the table's value × projected
+    /// cone solid angle (the radial-0 cone is the spike's cap) by a χ² over all cones and
+    /// |z| < 5 each; the TIS lines agree with the sampled R and T fractions (|z| < 4); and the
+    /// specular spike is in the table (without it the radial-0 cones fail).
+    #[test]
+    fn dotted_export_reproduces_the_sampled_face() {
+        use opal::bsdf::{Bxdfs, Dotted, SmoothDielectric};
+        let (f, eta) = (0.35, 1.5);
+        let face = FaceModel::dotted(f, Ndfs::ggx(0.3), eta, Scattering::Single).unwrap();
+        let rough = RoughDielectric::new(Ndfs::ggx(0.3), eta as f32, Shadowing::Separable).unwrap();
+        let sim = Dotted::new(
+            f as f32,
+            Bxdfs::RoughDielectric(rough),
+            Bxdfs::SmoothDielectric(SmoothDielectric::new(eta as f32).unwrap()),
+        )
+        .unwrap();
+        let (az, rad) = ([0.0, 45.0, 90.0, 135.0, 180.0], [0.0, 2.0, 6.0, 12.0, 25.0, 45.0]);
+        let rho = spike_cap_deg(&rad).unwrap().to_radians();
+        let cone = 2.0 * PI * (1.0 - rho.cos());
+        let n = 400_000usize;
+        let (mut chi2, mut dof) = (0.0, 0usize);
+        for side in [LightSide::AirToMaterial, LightSide::MaterialToAir] {
+            for a in [0.0f64, 30.0, 60.0] {
+                let aoi = a.to_radians();
+                let l = light_dir(side, aoi);
+                let mut rng = Rng::new(0xD07, a.to_bits(), side.sign().to_bits() as u64);
+                let samples: Vec<(Vec3, f64)> = (0..n)
+                    .filter_map(|_| {
+                        let uc = rng.next_f32();
+                        let s = sim.sample(l, uc, rng.next_2d(), TransportMode::Importance)?;
+                        Some((s.wi, s.weight().average() as f64))
+                    })
+                    .collect();
+                for tr in [false, true] {
+                    let text = zemax_bsdf(&face, side, tr, &[a], &az, &rad, "z test");
+                    let t = crate::scatter::zemax::parse(&text, std::path::Path::new("d.BSDF")).unwrap();
+                    let blk = t.block(0, 0, 0);
+                    // TIS against the sampled fraction
+                    let hemi: Vec<f64> =
+                        samples.iter().filter(|(w, _)| (w.z * l.z < 0.0) == tr).map(|s| s.1).collect();
+                    let (sum, sq) = (hemi.iter().sum::<f64>(), hemi.iter().map(|w| w * w).sum::<f64>());
+                    let (mean, var) = (sum / n as f64, sq / n as f64 - (sum / n as f64).powi(2));
+                    let z = (blk.tis.unwrap() - mean) / (var / n as f64).sqrt().max(1e-6);
+                    assert!(
+                        z.abs() < 4.0,
+                        "{side:?} aoi {a} T {tr}: TIS {} vs {mean} (z {z})",
+                        blk.tis.unwrap()
+                    );
+                    let c = specular_center(&face, side, aoi, tr);
+                    for (j, &p) in az.iter().enumerate() {
+                        for (k, &q) in rad.iter().enumerate() {
+                            let d = scatter_dir(c, p, q);
+                            if d.z * c.z < 0.15 || (k == 0 && j > 0) {
+                                continue; // near or beyond the horizon; radial 0 once
+                            }
+                            let expected =
+                                blk.values[j * rad.len() + k] * (d.z * c.z.signum()) as f64 * cone * n as f64;
+                            let (mut o, mut v) = (0.0, 0.0);
+                            for (w, wt) in &samples {
+                                if (w.dot(d) as f64) >= rho.cos() {
+                                    o += wt;
+                                    v += wt * wt;
+                                }
+                            }
+                            if expected < 20.0 && o < 20.0 {
+                                continue; // too few photons for a Gaussian z
+                            }
+                            let z = (o - expected) / v.max(expected).sqrt();
+                            assert!(
+                                z.abs() < 5.0,
+                                "{side:?} aoi {a} T {tr} az {p} rad {q}: {o} vs {expected}"
+                            );
+                            chi2 += z * z;
+                            dof += 1;
+                        }
+                    }
+                }
+            }
+        }
+        let bound = dof as f64 + 4.0 * (2.0 * dof as f64).sqrt();
+        assert!(dof > 80 && chi2 < bound, "χ² {chi2} over {dof} cones (bound {bound})");
     }
 }

@@ -10,6 +10,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use opal::bsdf::microfacet::Ndfs;
 use opal::gonio::{Face, Side};
+use opal_inverse::export::lighttools::lighttools_bsdf;
 use opal_inverse::export::{FaceModel, LightSide, bsdf_csv, ndf_table, zemax_bsdf};
 use opal_inverse::measured::Measured;
 use opal_inverse::ndf_fit::{
@@ -128,12 +129,20 @@ pub struct FitOutcome {
     pub report: FitReport,
 }
 
-/// Reads the measured files (CSV or Zemax `.BSDF` by extension) and merges them.
+/// Reads the measured files (Zemax `.BSDF` by extension, LightTools BSDF text by its first
+/// line `Symmetry Asymmetric`, else CSV) and merges them.
 pub fn read_measured(paths: &[PathBuf]) -> Result<Measured> {
     let mut parts = Vec::new();
     for p in paths {
+        let lighttools = || {
+            std::fs::read(p).is_ok_and(|b| {
+                opal_inverse::scatter::lighttools::is_lighttools_text(&String::from_utf8_lossy(&b))
+            })
+        };
         let m = if zemax::is_zemax_path(p) {
             zemax::read(p).and_then(|t| t.to_measured(p))
+        } else if lighttools() {
+            opal_inverse::scatter::lighttools::read(p).and_then(|t| t.to_measured(p))
         } else {
             Measured::read(p)
         };
@@ -259,9 +268,19 @@ fn candidate_json(c: &Candidate) -> serde_json::Value {
 }
 
 /// The fitted face as a PLATE.toml `[plate.back]`-style body (`opal gonio simulate` loads it):
-/// analytic parameters when the model has no table, `hybrid` with the node table when it is
-/// not shifted, else the fitted D tabulated every 0.1°.
+/// `type = "rough"`, or `type = "dotted"` with the coverage for a dotted model (the NDF keys
+/// then describe the dots), then the NDF: analytic parameters when the model has no table,
+/// `hybrid` with the node table when it is not shifted, else the fitted D tabulated every 0.1°.
 fn face_toml(m: &Model, ndf: &Ndfs) -> String {
+    let kind = match m.coverage {
+        Some(f) => format!("type = \"dotted\"\ncoverage = {f}\n"),
+        None => "type = \"rough\"\n".to_string(),
+    };
+    kind + &face_ndf_toml(m, ndf)
+}
+
+/// The NDF keys of [`face_toml`].
+fn face_ndf_toml(m: &Model, ndf: &Ndfs) -> String {
     let base = match m.base {
         Family::Student => format!("student:{}:{}", m.alpha, m.gamma.unwrap_or(2.0)),
         b => format!("{}:{}", b.name(), m.alpha),
@@ -325,7 +344,9 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
     }
     write_bytes_atomic(&out.join("ndf.csv"), t.as_bytes())?;
     // BSDF of both sides
-    let bsdf = FaceModel::new(ndf.clone(), s.plate.ior, s.scattering).map_err(|e| anyhow!("{e}"))?;
+    // the face actually fitted: for a dotted model the dots on `coverage` of a polished land
+    let bsdf = FaceModel::fitted(ndf.clone(), s.plate.ior, s.scattering, best.model.coverage)
+        .map_err(|e| anyhow!("{e}"))?;
     let aois: Vec<f64> = (0..18).map(|i| i as f64 * 5.0).collect();
     let (table, tis) = bsdf_csv(&bsdf, &aois, 2.0, 10.0);
     write_bytes_atomic(&out.join("bsdf.csv"), table.as_bytes())?;
@@ -345,10 +366,14 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
             write_bytes_atomic(&out.join(format!("{}_{kind}.BSDF", side.label())), z.as_bytes())?;
         }
     }
+    // both sides, R and T in one LightTools BSDF text file (global angles, full azimuth)
+    let lt_az: Vec<f64> = (0..36).map(|i| i as f64 * 10.0).collect();
+    let lt = lighttools_bsdf(&bsdf, &aois, &lt_az, &rad, &comment);
+    write_bytes_atomic(&out.join("face_lighttools.txt"), lt.as_bytes())?;
     // the fitted face as a PLATE.toml fragment `opal gonio simulate` loads
     let face_toml = format!(
         "# fitted by opal fit-ndf from {}\n[plate]\nior = {}\nthickness_mm = {}\nentry = \"{}\"\n\
-         [plate.front]\ntype = \"polished\"\n[plate.back]\ntype = \"rough\"\n{}scattering = \"{}\"\n\
+         [plate.front]\ntype = \"polished\"\n[plate.back]\n{}scattering = \"{}\"\n\
          [beam]\ndivergence_deg = {}\n[detectors]\nradius_deg = {}\n",
         measured_names(a),
         s.plate.ior,
@@ -735,7 +760,8 @@ mod tests {
         assert_eq!(j["face"]["chessboard_dotted_coverage"].as_f64(), Some(f));
     }
 
-    /// Every form of `plate_fitted.toml`'s rough face loads back as the same NDF.
+    /// Every form of `plate_fitted.toml`'s rough face loads back as the same NDF (a dotted
+    /// face as the same dots and coverage on a polished land).
     #[test]
     fn fitted_face_toml_round_trips() {
         let mut student = Model::new(Family::Student, 0.2);
@@ -748,20 +774,31 @@ mod tests {
         let mut shifted_hybrid = hybrid.clone();
         shifted_hybrid.delta = Some(5f64.to_radians());
         let d = tempfile::tempdir().unwrap();
-        for (i, m) in [Model::new(Family::Beckmann, 0.25), student, shifted, hybrid, shifted_hybrid]
+        let mut dotted = Model::new(Family::Dotted, 0.3);
+        dotted.coverage = Some(0.37);
+        for (i, m) in [Model::new(Family::Beckmann, 0.25), student, shifted, hybrid, shifted_hybrid, dotted]
             .into_iter()
             .enumerate()
         {
             let ndf = m.ndf().unwrap();
             let text = format!(
                 "[plate]\nior = 1.49\nthickness_mm = 2\n[plate.front]\ntype = \"polished\"\n\
-                 [plate.back]\ntype = \"rough\"\n{}",
+                 [plate.back]\n{}",
                 face_toml(&m, &ndf)
             );
             let p = d.path().join(format!("p{i}.toml"));
             std::fs::write(&p, &text).unwrap();
             let cfg = build_config(&read_plate_file(&p).unwrap(), &PlateOverrides::default()).unwrap();
-            let Face::Rough { ndf: back, .. } = cfg.plate.back else { panic!("rough back") };
+            let back = match (cfg.plate.back, m.coverage) {
+                (Face::Rough { ndf, .. }, None) => ndf,
+                (Face::Dotted { coverage, dots, land }, Some(f)) => {
+                    assert_eq!(coverage, f);
+                    assert!(matches!(*land, Face::Polished));
+                    let Face::Rough { ndf, .. } = *dots else { panic!("rough dots") };
+                    ndf
+                }
+                (b, c) => panic!("{b:?} for coverage {c:?}"),
+            };
             for deg in [0.0f64, 2.0, 5.0, 9.0, 15.0, 30.0] {
                 let t = deg.to_radians();
                 let w = Vec3::new(t.sin() as f32, 0.0, t.cos() as f32);

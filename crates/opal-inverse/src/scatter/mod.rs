@@ -6,7 +6,11 @@
 //!   layout): [`zemax::parse`] / [`zemax::read`] into a [`zemax::BsdfTable`], [`zemax::write`]
 //!   back to text, [`zemax::BsdfTable::to_measured`] to the plane-of-incidence curves that
 //!   [`crate::ndf_fit`] fits.
+//! * [`lighttools`] — LightTools BSDF text (also written by Light Tec MiniDiff): both sides,
+//!   R and T in one file, global spherical scatter angles: [`lighttools::parse`] /
+//!   [`lighttools::read`] into a [`lighttools::LtTable`], [`lighttools::write`] back to text.
 //!
 //! Formats are documented in `docs/formats.md`; tests live next to each reader.
 
+pub mod lighttools;
 pub mod zemax;

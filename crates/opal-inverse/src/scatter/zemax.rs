@@ -297,22 +297,25 @@ pub fn is_zemax_path(path: &Path) -> bool {
     path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("bsdf"))
 }
 
+/// A whitespace-separated token with its 1-based line and column (shared with the
+/// [`super::lighttools`] reader).
 #[derive(Clone, Copy)]
-struct Tok<'a> {
-    line: usize,
-    col: usize,
-    text: &'a str,
+pub(super) struct Tok<'a> {
+    pub(super) line: usize,
+    pub(super) col: usize,
+    pub(super) text: &'a str,
 }
 
-struct Tokens<'a> {
-    toks: Vec<Tok<'a>>,
-    pos: usize,
+/// The tokens of a file without its `#` comment lines.
+pub(super) struct Tokens<'a> {
+    pub(super) toks: Vec<Tok<'a>>,
+    pub(super) pos: usize,
     path: &'a Path,
     last_line: usize,
 }
 
 impl<'a> Tokens<'a> {
-    fn new(text: &'a str, path: &'a Path) -> Self {
+    pub(super) fn new(text: &'a str, path: &'a Path) -> Self {
         let mut toks = Vec::new();
         let mut last_line = 1;
         for (i, line) in text.lines().enumerate() {
@@ -338,15 +341,15 @@ impl<'a> Tokens<'a> {
         Tokens { toks, pos: 0, path, last_line }
     }
 
-    fn err_at(&self, t: &Tok, msg: String) -> Error {
+    pub(super) fn err_at(&self, t: &Tok, msg: String) -> Error {
         Error::Parse { path: self.path.to_path_buf(), line: t.line, col: t.col, msg }
     }
 
-    fn peek(&self) -> Option<&Tok<'a>> {
+    pub(super) fn peek(&self) -> Option<&Tok<'a>> {
         self.toks.get(self.pos)
     }
 
-    fn next(&mut self, expected: &str) -> opal::Result<Tok<'a>> {
+    pub(super) fn next(&mut self, expected: &str) -> opal::Result<Tok<'a>> {
         if self.pos >= self.toks.len() {
             return Err(Error::Parse {
                 path: self.path.to_path_buf(),
@@ -359,7 +362,7 @@ impl<'a> Tokens<'a> {
         Ok(self.toks[self.pos - 1])
     }
 
-    fn number(&mut self, expected: &str) -> opal::Result<f64> {
+    pub(super) fn number(&mut self, expected: &str) -> opal::Result<f64> {
         let t = self.next(expected)?;
         match t.text.parse::<f64>() {
             Ok(v) if v.is_finite() => Ok(v),
@@ -375,7 +378,7 @@ fn is_number(s: &str) -> bool {
 
 /// An angle list: `Keyword n` then n angles; checked against `range` (inclusive bounds as
 /// given by `hi_inclusive`).
-fn angle_list(
+pub(super) fn angle_list(
     tk: &mut Tokens,
     key: &Tok,
     name: &str,

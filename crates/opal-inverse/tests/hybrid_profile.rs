@@ -1,0 +1,66 @@
+//! Where the simulations of `--family hybrid` forced on the dotted plate go (issue 18, item
+//! "speed"): the Mitsuba dotted plate (35 % GGX α 0.3 dots, n 1.52, 3 mm, smooth entry, plane
+//! layout), the CLI's defaults (200 000 photons, 4 nodes); prints every candidate's simulations
+//! and the coarse/full split. Run:
+//! cargo test -p opal-inverse --test hybrid_profile --release -- --ignored --nocapture
+
+use opal::gonio::{Beam, Face, Plate, Scattering};
+use opal_inverse::measured::Measured;
+use opal_inverse::ndf_fit::{DEFAULT_MIN_SNR, Family, FitOn, FitOptions, FitSetup, Problem, ScaleSetup, fit};
+use std::path::Path;
+
+fn setup(rough_front: bool, photons: u64) -> FitSetup {
+    FitSetup {
+        plate: Plate {
+            ior: 1.52,
+            thickness_mm: 3.0,
+            absorption_per_mm: 0.0,
+            front: Face::Polished,
+            back: Face::Polished,
+            radius_mm: None,
+        },
+        rough_front,
+        scattering: Scattering::Single,
+        beam: Beam { azimuth: 0.0, divergence: 0.5f64.to_radians(), aperture_radius_mm: 1.0 },
+        detector_radius: 1f64.to_radians(),
+        detector_distance_mm: None,
+        photons,
+        seed: 7,
+        max_interactions: 200,
+        fit_on: FitOn::Both,
+        floor_rel: 1e-2,
+        max_iters: 40,
+        coarse_photons: FitSetup::default_coarse(photons),
+        scale: ScaleSetup::default(),
+        rel_error: 0.0,
+        min_snr: Some(DEFAULT_MIN_SNR),
+    }
+}
+
+#[test]
+#[ignore]
+fn hybrid_forced_on_dotted_plate() {
+    let name = "dotted_ggx_a0.3_f0.35_smooth";
+    let p =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/gonio").join(format!("{name}.csv"));
+    let problem = Problem::new(Measured::read(&p).unwrap(), setup(false, 200_000)).unwrap();
+    let t0 = std::time::Instant::now();
+    let r =
+        fit(&problem, &FitOptions { family: Some(Family::Hybrid), shift: false, hybrid_nodes: 4 }).unwrap();
+    for (i, c) in r.candidates.iter().enumerate() {
+        eprintln!(
+            "[{i}] {} | {} simulations, converged {} | check rms/noise {:.3}",
+            c.fit.model.describe(),
+            c.fit.evaluations,
+            c.fit.converged,
+            c.check.rms / c.check.noise
+        );
+    }
+    let (coarse, full) = problem.evaluations_by_stage();
+    eprintln!(
+        "kept [{}] {}; {coarse} coarse + {full} full simulations, {:.1} s",
+        r.best,
+        r.best().fit.model.describe(),
+        t0.elapsed().as_secs_f64()
+    );
+}
