@@ -123,9 +123,17 @@ pub(in crate::delight) fn iterate(
         let c0 = StageClock::start();
         let rdesc = recovered_desc(desc, objects);
         let rscene = Scene::build(&rdesc)?;
+        let solo = opal::dist::Solo;
+        let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
         let lt = LightTraceSettings {
             paths,
-            batch_size: 1 << 20,
+            // several batches per process when the paths are split (the maps do not depend on
+            // the batch size)
+            batch_size: if comm.size() > 1 {
+                paths.div_ceil(4 * comm.size() as u64).clamp(1 << 12, 1 << 20)
+            } else {
+                1 << 20
+            },
             max_depth: -1,
             rr_depth: 5,
             seed: s.seed.wrapping_add(k as u64),
@@ -133,7 +141,9 @@ pub(in crate::delight) fn iterate(
             // is measured in the first pass only; the method uses the indirect map
             direct: k == 1,
         };
-        let out = light_tracer::trace(&rscene, &targets, &lt, &|| {});
+        let comm0 = comm.comm_seconds();
+        let out = light_tracer::trace_split(&rscene, &targets, &lt, &|| {}, comm);
+        let comm_seconds = comm.comm_seconds() - comm0;
         let (w, c) = c0.elapsed();
         lt_wall += w;
         lt_cpu += c;
@@ -205,6 +215,7 @@ pub(in crate::delight) fn iterate(
             light_paths: paths,
             texel_noise,
             texel_noise_all,
+            comm_seconds,
         };
         log(&format!(
             "iteration {k}: max rel. error {:.2} %, mean {:.2} % ({:.1} s, {} light paths, per-texel noise {:.1} %)",
