@@ -141,8 +141,14 @@ pub(in crate::delight) fn iterate(
             // is measured in the first pass only; the method uses the indirect map
             direct: k == 1,
         };
+        // Ctrl-C during the pass stops it within a batch; the pass is dropped and the last
+        // finished iteration (already checkpointed) is what is kept. Under MPI the paths are
+        // split across the ranks (same maps, bit for bit).
         let comm0 = comm.comm_seconds();
-        let out = light_tracer::trace_split(&rscene, &targets, &lt, &|| {}, comm);
+        let Some(out) = light_tracer::trace_split(&rscene, &targets, &lt, &|| {}, s.cancel.as_deref(), comm)
+        else {
+            return Err(Error::Interrupted { kept: kept(s, k - 1) });
+        };
         let comm_seconds = comm.comm_seconds() - comm0;
         let (w, c) = c0.elapsed();
         lt_wall += w;

@@ -206,34 +206,60 @@ pub fn trace(
     s: &LightTraceSettings,
     on_batch: &(dyn Fn() + Sync),
 ) -> LightTraceOutput {
-    trace_split(scene, targets, s, on_batch, &crate::dist::Solo)
+    trace_cancellable(scene, targets, s, on_batch, None).expect("a pass without a cancel flag finishes")
 }
 
-/// [`trace`] with the path batches split across the processes of `comm`: batch `b` is traced by
-/// rank `b mod size`, the integer texel sums are added over the ranks (wrapping `u64` sums:
-/// exact in any order) and every rank returns the maps one process computes, bit for bit.
-/// `on_batch` counts this rank's batches only.
+/// [`trace`] that stops early when `cancel` becomes `true`: the workers look at the flag before
+/// each batch, so the pass ends within one batch per worker and returns `None` (the partial
+/// sums are dropped: a pass is all or nothing). With the flag never set, the result is [`trace`]'s,
+/// bit for bit.
+pub fn trace_cancellable(
+    scene: &Scene,
+    targets: &[Option<IrradianceTarget>],
+    s: &LightTraceSettings,
+    on_batch: &(dyn Fn() + Sync),
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Option<LightTraceOutput> {
+    trace_split(scene, targets, s, on_batch, cancel, &crate::dist::Solo)
+}
+
+/// [`trace_cancellable`] with the path batches split across the processes of `comm`: batch `b`
+/// is traced by rank `b mod size`, the integer texel sums are added over the ranks (wrapping
+/// `u64` sums: exact in any order) and every rank returns the maps one process computes, bit
+/// for bit. `on_batch` counts this rank's batches only. The ranks agree on a cancellation: the
+/// pass is dropped on every rank when any rank's flag was set.
 pub fn trace_split(
     scene: &Scene,
     targets: &[Option<IrradianceTarget>],
     s: &LightTraceSettings,
     on_batch: &(dyn Fn() + Sync),
+    cancel: Option<&std::sync::atomic::AtomicBool>,
     comm: &dyn crate::dist::Comm,
-) -> LightTraceOutput {
+) -> Option<LightTraceOutput> {
     let Some(sampler) = scene.light_sampler() else {
-        return LightTraceOutput { maps: empty_maps(targets), paths: 0, nonfinite: 0 };
+        return Some(LightTraceOutput { maps: empty_maps(targets), paths: 0, nonfinite: 0 });
     };
     let mut shift = 0;
     loop {
         let fp = FixedPoint::new(scene, targets, s.paths, shift);
-        match trace_fixed(scene, sampler, targets, s, &fp, on_batch, Engine::Auto, comm) {
-            Ok(out) => return out,
+        match trace_fixed(scene, sampler, targets, s, &fp, on_batch, Engine::Auto, cancel, comm) {
+            Ok(out) => return Some(out),
+            Err(Stop::Cancelled) => return None,
             // Some shape's deposits summed to ≥ 2⁶³ units: a texel may have overflowed. Trace
             // again with a coarser unit (never seen in practice; the result stays deterministic
             // since the decision depends on exact integer sums only).
-            Err(bits) => shift -= bits,
+            Err(Stop::Rescale(bits)) => shift -= bits,
         }
     }
+}
+
+/// Why [`trace_fixed`] gave no maps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stop {
+    /// The fixed-point scale must shrink by `2^bits`.
+    Rescale(i32),
+    /// The cancel flag was set.
+    Cancelled,
 }
 
 /// How the paths are traced (tests compare the three; results are identical).
@@ -251,7 +277,8 @@ enum Engine {
     Scalar,
 }
 
-/// One pass at a fixed-point scale; `Err(bits)` when the scale must shrink by `2^bits`.
+/// One pass at a fixed-point scale; `Err(Stop::Rescale(bits))` when the scale must shrink by
+/// `2^bits`, `Err(Stop::Cancelled)` when `cancel` was set during the pass (on any rank).
 #[allow(clippy::too_many_arguments)]
 fn trace_fixed(
     scene: &Scene,
@@ -261,8 +288,9 @@ fn trace_fixed(
     fp: &FixedPoint,
     on_batch: &(dyn Fn() + Sync),
     engine: Engine,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
     comm: &dyn crate::dist::Comm,
-) -> Result<LightTraceOutput, i32> {
+) -> Result<LightTraceOutput, Stop> {
     use std::sync::atomic::{AtomicU64, Ordering};
     let batch = s.batch_size.max(1);
     // this process's batches (all of them when it is alone)
@@ -291,6 +319,9 @@ fn trace_fixed(
             let mut sink = Sink::new(empty_acc(targets, s.direct));
             let mut bad = 0u64;
             loop {
+                if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+                    break;
+                }
                 let j = next.fetch_add(1, Ordering::Relaxed);
                 if j >= n_batches {
                     break;
@@ -310,6 +341,14 @@ fn trace_fixed(
             (sink.finish(), bad)
         })
         .collect();
+    // cancelled on any rank: every rank drops the pass (a collective, so all decide alike)
+    let mut stop = [cancel.is_some_and(|c| c.load(Ordering::Relaxed)) as u64];
+    if comm.size() > 1 {
+        comm.all_sum_u64(&mut stop);
+    }
+    if stop[0] > 0 {
+        return Err(Stop::Cancelled);
+    }
     let mut nonfinite = [results.iter().map(|r| r.1).sum::<u64>()];
     let mut accs: Vec<Acc> = results.into_iter().map(|r| r.0).collect();
     if accs.is_empty() {
@@ -337,7 +376,7 @@ fn trace_fixed(
     for &total in &totals {
         if total >= 1u128 << 63 {
             let bits = (128 - total.leading_zeros()) as i32 - 62;
-            return Err(bits.max(1));
+            return Err(Stop::Rescale(bits.max(1)));
         }
     }
     // reduce: wrapping integer sums (exact since no texel's true sum reaches 2⁶³), then scale

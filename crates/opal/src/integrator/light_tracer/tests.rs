@@ -358,7 +358,8 @@ fn fast_paths_and_fixed_point_match_the_generic_f64_pass_for_any_thread_count() 
     let fp = FixedPoint::new(&scene, &targets, s.paths, 0);
     let other_batches = LightTraceSettings { batch_size: 1_234, ..s };
     for (engine, s) in [(Engine::WavefrontRays, s), (Engine::Scalar, s), (Engine::Auto, other_batches)] {
-        let o = trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, engine, &crate::dist::Solo).unwrap();
+        let o = trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, engine, None, &crate::dist::Solo)
+            .unwrap();
         for k in 0..2 {
             let (a, b) = (o.maps[k].as_ref().unwrap(), runs[0].maps[k].as_ref().unwrap());
             assert_eq!((&a.direct, &a.indirect), (&b.direct, &b.indirect), "{engine:?}");
@@ -391,9 +392,11 @@ fn fixed_point_overflow_is_detected_and_traced_again() {
     let out = loop {
         tries += 1;
         let fp = FixedPoint::new(&scene, &targets, s.paths, shift);
-        match trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, Engine::Auto, &crate::dist::Solo) {
+        match trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, Engine::Auto, None, &crate::dist::Solo)
+        {
             Ok(out) => break out,
-            Err(bits) => {
+            Err(Stop::Cancelled) => unreachable!("no cancel flag"),
+            Err(Stop::Rescale(bits)) => {
                 assert!(bits >= 1);
                 shift -= bits;
             }
@@ -572,7 +575,7 @@ fn engines_agree_on(scene: &Scene, n_ball: usize) {
     let fp = FixedPoint::new(scene, &targets, s.paths, 0);
     let runs: Vec<LightTraceOutput> = [Engine::Auto, Engine::WavefrontRays, Engine::Scalar]
         .into_iter()
-        .map(|e| trace_fixed(scene, sampler, &targets, &s, &fp, &|| {}, e, &crate::dist::Solo).unwrap())
+        .map(|e| trace_fixed(scene, sampler, &targets, &s, &fp, &|| {}, e, None, &crate::dist::Solo).unwrap())
         .collect();
     for k in 0..2 {
         let a = runs[0].maps[k].as_ref().unwrap();
@@ -608,7 +611,8 @@ fn split_pass_matches_for_any_process_count() {
     let m = one.maps[0].as_ref().unwrap();
     assert!(m.indirect.iter().any(|t| t[0] > 0.0) && m.direct.iter().any(|t| t[0] > 0.0));
     for n in [2, 3, 9] {
-        let all = crate::dist::ThreadComm::run(n, |c| trace_split(&scene, &targets, &s, &|| {}, c));
+        let all =
+            crate::dist::ThreadComm::run(n, |c| trace_split(&scene, &targets, &s, &|| {}, None, c).unwrap());
         for o in &all {
             let r = o.maps[0].as_ref().unwrap();
             assert_eq!(r.direct, m.direct, "{n} ranks");
@@ -616,4 +620,41 @@ fn split_pass_matches_for_any_process_count() {
             assert_eq!((o.paths, o.nonfinite), (one.paths, one.nonfinite));
         }
     }
+}
+
+#[test]
+fn cancel_flag_stops_the_pass_and_unset_changes_nothing() {
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    let desc = SceneDesc {
+        shapes: vec![
+            shape("floor", floor_quad(1.0), diffuse(0.5), None),
+            shape(
+                "box",
+                inward_box(),
+                diffuse(0.5),
+                Some(AreaEmitterDesc { radiance: Spectrum::splat(1.0) }),
+            ),
+        ],
+        ..Default::default()
+    };
+    let scene = Scene::build(&desc).unwrap();
+    let targets = [Some(target(4, 1.0)), None];
+    let s = LightTraceSettings { paths: 200_000, seed: 3, batch_size: 1_000, ..Default::default() };
+    // never set: the same bits as `trace`
+    let flag = AtomicBool::new(false);
+    let a = trace_cancellable(&scene, &targets, &s, &|| {}, Some(&flag)).expect("not cancelled");
+    let b = trace(&scene, &targets, &s, &|| {});
+    assert_eq!(a.maps[0].as_ref().unwrap().direct, b.maps[0].as_ref().unwrap().direct);
+    assert_eq!(a.maps[0].as_ref().unwrap().indirect, b.maps[0].as_ref().unwrap().indirect);
+    assert!(a.maps[0].as_ref().unwrap().indirect.iter().all(|t| t[0] > 0.0), "light reached every texel");
+    // set after the first batch: the pass stops within a batch per worker and gives no maps
+    let batches = AtomicUsize::new(0);
+    let on_batch = || {
+        batches.fetch_add(1, Ordering::Relaxed);
+        flag.store(true, Ordering::Relaxed);
+    };
+    assert!(trace_cancellable(&scene, &targets, &s, &on_batch, Some(&flag)).is_none());
+    let done = batches.load(Ordering::Relaxed);
+    let workers = rayon::current_num_threads().clamp(1, MAX_WORKERS);
+    assert!(done <= workers, "{done} batches traced after the flag was set (workers {workers})");
 }
