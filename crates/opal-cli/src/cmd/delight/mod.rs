@@ -560,9 +560,8 @@ fn write_outputs(
         hline: (a.tolerance > 0.0).then_some(100.0 * a.tolerance),
     };
     if !r.iterations.is_empty() {
-        let tmp = out.join(".convergence.tmp.png");
-        plot.save(&tmp, (640, 420))?;
-        std::fs::rename(&tmp, out.join("convergence.png"))?;
+        // written atomically (temp file + rename), by rank 0 only under MPI
+        plot.save(&out.join("convergence.png"), (640, 420))?;
     }
     let t_out = t0.elapsed();
     // re-renders and region statistics
