@@ -8,7 +8,7 @@ use opal_cli::{Cli, Command, cmd, util};
 
 fn main() {
     // under an MPI launcher (`mpi` feature): join the job; otherwise one process
-    let _mpi = opal_cli::dist::init();
+    let mpi = opal_cli::dist::init();
     // `opal delight --resume OUTDIR` runs the saved command line of that output folder
     let argv = match cmd::delight::resume::expand(std::env::args_os().collect()) {
         Ok(a) => a,
@@ -45,7 +45,7 @@ fn main() {
     };
     match result {
         Ok(code) => {
-            drop(_mpi);
+            mpi.finish();
             std::process::exit(code)
         }
         Err(e) => {
@@ -56,6 +56,7 @@ fn main() {
             let interrupted = e.chain().any(|c| {
                 matches!(c.downcast_ref::<opal::error::Error>(), Some(opal::error::Error::Interrupted { .. }))
             });
+            mpi.finish();
             std::process::exit(if interrupted { 130 } else { 2 });
         }
     }
