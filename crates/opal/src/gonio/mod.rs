@@ -444,7 +444,8 @@ impl Gonio {
     /// Shares every run's photon batches with the other processes of `comm`: batch `b` is
     /// traced by rank `b mod size`, the batch accumulators are exchanged whole and every rank
     /// merges them in batch order, so each rank gets the result one process computes, bit for
-    /// bit. Every rank must make the same runs in the same order.
+    /// bit. Every rank must make the same runs in the same order (and a cancel flag, if any,
+    /// must be set on every rank: a rank that stops alone leaves the others waiting).
     pub fn with_comm(mut self, comm: Option<std::sync::Arc<dyn crate::dist::Comm>>) -> Self {
         self.comm = comm;
         self
