@@ -7,6 +7,7 @@
 
 pub mod assets;
 pub mod cmd;
+pub mod dist;
 pub mod glb;
 pub mod plate;
 #[allow(dead_code)]

@@ -7,6 +7,8 @@ use clap::Parser;
 use opal_cli::{Cli, Command, cmd, util};
 
 fn main() {
+    // under an MPI launcher (`mpi` feature): join the job; otherwise one process
+    let mpi = opal_cli::dist::init();
     // `opal delight --resume OUTDIR` runs the saved command line of that output folder
     let argv = match cmd::delight::resume::expand(std::env::args_os().collect()) {
         Ok(a) => a,
@@ -16,7 +18,7 @@ fn main() {
         }
     };
     let cli = Cli::parse_from(argv);
-    util::set_quiet(cli.quiet);
+    util::set_quiet(cli.quiet || !opal_cli::dist::is_root());
     // `delight` keeps its finished iterations on Ctrl-C (its own handler); the others stop
     let result = match cli.command {
         Command::Delight(a) => cmd::delight::run(a),
@@ -42,13 +44,19 @@ fn main() {
         }
     };
     match result {
-        Ok(code) => std::process::exit(code),
+        Ok(code) => {
+            mpi.finish();
+            std::process::exit(code)
+        }
         Err(e) => {
+            // in a job of several ranks: the message with the rank, then MPI_Abort
+            opal_cli::dist::fail(&format!("error: {e:#}"));
             eprintln!("error: {e:#}");
             // 130 = stopped by a signal (128 + SIGINT), as shells report it; 2 = bad input
             let interrupted = e.chain().any(|c| {
                 matches!(c.downcast_ref::<opal::error::Error>(), Some(opal::error::Error::Interrupted { .. }))
             });
+            mpi.finish();
             std::process::exit(if interrupted { 130 } else { 2 });
         }
     }

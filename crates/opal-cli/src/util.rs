@@ -92,7 +92,12 @@ pub fn progress(len: u64, msg: &str) -> ProgressBar {
 
 /// Writes a file atomically: the content goes to a temporary file in the target folder, which
 /// is renamed into place only when `write` succeeded. A crash never leaves a half-written file.
+/// In a job of several processes only rank 0 writes (the others return `Ok` at once; see
+/// [`crate::dist`]).
 pub fn write_atomic(path: &Path, write: impl FnOnce(&mut std::fs::File) -> Result<()>) -> Result<()> {
+    if !crate::dist::is_root() {
+        return Ok(());
+    }
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),

@@ -164,6 +164,7 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "light_paths",
         "texel_noise",
         "texel_noise_per_object",
+        "comm_seconds",
     ];
     for it in report["iterations"].as_array().unwrap() {
         common::assert_keys("delight --json iteration", it, &it_keys, "delight.md");

@@ -15,11 +15,13 @@
 //! * [`texture`] — texture lookups (Mitsuba `bitmap` semantics).
 //! * [`simd`] — the SIMD policy: instruction set detected once, lane types.
 //! * [`error`] — the library error type.
+//! * [`dist`] — splitting work across processes ([`dist::Comm`]), bitwise independent of their count.
 #![warn(missing_docs)]
 
 pub mod accel;
 pub mod bsdf;
 pub mod camera;
+pub mod dist;
 pub mod error;
 pub mod fastmath;
 pub mod geometry;

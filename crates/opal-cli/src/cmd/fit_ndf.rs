@@ -250,7 +250,9 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
     // Ctrl-C); the `opal` binary's own Ctrl-C handler exits at once
     let problem = Problem::new(measured, setup)
         .map_err(|e| anyhow!("{e}"))?
-        .with_cancel(Some(crate::util::interrupt_flag()));
+        .with_cancel(Some(crate::util::interrupt_flag()))
+        // under MPI: every evaluation's photon batches split across the ranks (same bits)
+        .with_comm(crate::dist::comm());
     Ok((problem, opts))
 }
 

@@ -192,9 +192,12 @@ impl SimulateArgs {
 }
 
 /// Runs a configuration with a progress bar; returns the simulator, result and wall time.
+/// Under MPI the photon batches are split across the ranks (same result bits for any count).
 pub fn simulate(cfg: &Config) -> Result<(Gonio, GonioResult, f64)> {
-    let gonio = Gonio::new(cfg.setup.clone()).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let batches = cfg.setup.photons.div_ceil(opal::gonio::BATCH) * cfg.setup.incidences.len() as u64;
+    let gonio =
+        Gonio::new(cfg.setup.clone()).map_err(|e| anyhow::anyhow!("{e}"))?.with_comm(crate::dist::comm());
+    let batches = (cfg.setup.photons.div_ceil(opal::gonio::BATCH) * cfg.setup.incidences.len() as u64)
+        .div_ceil(crate::dist::size() as u64);
     let pb = progress(batches, "gonio");
     let t0 = std::time::Instant::now();
     let res = gonio.run_plate_with_progress(&cfg.plate, &|| pb.inc(1)).map_err(|e| anyhow::anyhow!("{e}"))?;

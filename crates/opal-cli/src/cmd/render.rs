@@ -3,7 +3,7 @@
 use crate::util;
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use opal::integrator::path::{PathSettings, RenderOutput, render};
+use opal::integrator::path::{PathSettings, RenderOutput, render_split};
 use opal::scene::Scene;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -158,9 +158,11 @@ pub fn run(a: RenderArgs) -> Result<i32> {
     let c = &scene.cameras[cam];
     let settings = path_settings(&scene, cam, a.spp, a.max_depth, a.seed);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
-    let pb = util::progress(c.height as u64, "render");
+    // under MPI: row y on rank y mod size (the same image bits for any number of ranks)
+    let comm = crate::dist::comm_or_solo();
+    let pb = util::progress((0..c.height as u64).filter(|&y| comm.owns(y)).count() as u64, "render");
     let t0 = Instant::now();
-    let out = pool.install(|| render(&scene, cam, &settings, &|| pb.inc(1)));
+    let out = pool.install(|| render_split(&scene, cam, &settings, &|| pb.inc(1), None, &*comm))?;
     let secs = t0.elapsed().as_secs_f64();
     pb.finish_and_clear();
     write_outputs(&out, &a.output, a.png.as_deref(), a.stderr.as_deref())?;

@@ -105,6 +105,7 @@ fn stats_json(s: &IterationStats) -> Value {
         "texel_noise": f64s(&s.texel_noise),
         "texel_noise_all": s.texel_noise_all.to_bits(),
         "direct_ratio": f64s(&s.direct_ratio),
+        "comm_seconds": s.comm_seconds.to_bits(),
     })
 }
 
@@ -258,6 +259,8 @@ pub(in crate::delight) fn load(dir: &Path, fingerprint: u64, objects: &[ObjectRe
             texel_noise: fv(&s["texel_noise"], "texel_noise")?,
             texel_noise_all: f(&s["texel_noise_all"], "texel_noise_all")?,
             direct_ratio: fv(&s["direct_ratio"], "direct_ratio")?,
+            // absent in checkpoints written before MPI runs existed
+            comm_seconds: s["comm_seconds"].as_u64().map_or(0.0, f64::from_bits),
         });
     }
     if at != bin.len() {

@@ -104,6 +104,9 @@ pub struct IterationStats {
     /// check of the two estimators; ≈ 1). Measured in the first iteration only (NaN after: the
     /// later passes do not deposit first hits).
     pub direct_ratio: Vec<f64>,
+    /// Seconds this process spent in the exchange between processes of this pass's light
+    /// tracing (sums over the ranks and waiting for them; 0 alone).
+    pub comm_seconds: f64,
 }
 
 /// Result of [`delight`](super::delight).

@@ -99,6 +99,11 @@ pub struct DelightSettings {
     /// then returns [`opal::error::Error::Interrupted`], saying which iterations the checkpoint
     /// keeps.
     pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+    /// Processes that share the light paths of every light-tracing pass
+    /// ([`opal::integrator::light_tracer::trace_split`]; the maps are the one-process maps bit
+    /// for bit, so every rank runs the same de-lighting). `None`: this process alone. The other
+    /// stages run in full on every rank.
+    pub comm: Option<std::sync::Arc<dyn opal::dist::Comm>>,
 }
 
 /// Debug and error-analysis outputs of [`delight`](super::delight); [`Default`] = all off (no
@@ -142,6 +147,7 @@ impl Default for DelightSettings {
             checkpoint: None,
             resume: false,
             cancel: None,
+            comm: None,
         }
     }
 }

@@ -212,6 +212,8 @@ pub struct Problem {
     evals: Mutex<(u64, u64)>,
     /// Stops every simulation early when set ([`Problem::with_cancel`]).
     cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+    /// Processes sharing every simulation's photon batches ([`Problem::with_comm`]).
+    comm: Option<std::sync::Arc<dyn opal::dist::Comm>>,
 }
 
 /// Quality of one simulation against the measurement.
@@ -397,6 +399,7 @@ impl Problem {
             group_of,
             evals: Mutex::new((0, 0)),
             cancel: None,
+            comm: None,
         })
     }
 
@@ -407,6 +410,16 @@ impl Problem {
         self.gonio = self.gonio.with_cancel(cancel.clone());
         self.gonio_coarse = self.gonio_coarse.map(|g| g.with_cancel(cancel.clone()));
         self.cancel = cancel;
+        self
+    }
+
+    /// Splits the photon batches of every simulation (each objective evaluation) across the
+    /// processes of `comm` ([`Gonio::with_comm`]): every rank gets the one-process result bit
+    /// for bit, so every rank runs the same fit. Every rank must make the same calls.
+    pub fn with_comm(mut self, comm: Option<std::sync::Arc<dyn opal::dist::Comm>>) -> Self {
+        self.gonio = self.gonio.with_comm(comm.clone());
+        self.gonio_coarse = self.gonio_coarse.map(|g| g.with_comm(comm.clone()));
+        self.comm = comm;
         self
     }
 
@@ -489,7 +502,7 @@ impl Problem {
         let mut s = self.gonio.setup().clone();
         s.seed = seed;
         s.photons = photons;
-        Gonio::new(s)?.with_cancel(self.cancel.clone()).run_plate(plate)
+        Gonio::new(s)?.with_cancel(self.cancel.clone()).with_comm(self.comm.clone()).run_plate(plate)
     }
 
     fn stage_photons(&self, stage: Stage) -> u64 {

@@ -262,6 +262,21 @@ impl FaceModel {
     }
 }
 
+/// The accumulators of batches `range` from every rank of `c` (each holds those of the batches
+/// it owns, in batch order), in batch order.
+fn exchange(c: &dyn crate::dist::Comm, ndet: usize, range: std::ops::Range<u64>, mine: &[Acc]) -> Vec<Acc> {
+    let mut p = crate::dist::Packer::default();
+    for a in mine {
+        a.pack(&mut p);
+    }
+    let all = c.all_gather_bytes(&p.0);
+    let mut readers: Vec<crate::dist::Unpacker> = all.iter().map(|b| crate::dist::Unpacker(b)).collect();
+    let size = c.size() as u64;
+    let out = range.map(|b| Acc::unpack(ndet, &mut readers[(b % size) as usize])).collect();
+    assert!(readers.iter().all(|r| r.is_empty()), "a rank sent batches of another run");
+    out
+}
+
 /// Per-incidence constants of the beam.
 #[derive(Clone, Copy)]
 struct BeamFrame {
@@ -281,6 +296,8 @@ pub struct Gonio {
     simd: bool,
     /// Set from outside to stop a run early (see [`Gonio::with_cancel`]).
     cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+    /// Processes that share the batches (see [`Gonio::with_comm`]); `None` = this one alone.
+    comm: Option<std::sync::Arc<dyn crate::dist::Comm>>,
 }
 
 #[derive(Clone)]
@@ -311,6 +328,35 @@ impl Acc {
             interactions: 0,
             bad: 0,
         }
+    }
+    fn pack(&self, p: &mut crate::dist::Packer) {
+        for i in 0..self.sum.len() {
+            p.f64(self.sum[i]);
+            p.f64(self.sum2[i]);
+            p.f64(self.sum_bsdf[i]);
+            p.u64(self.hits[i]);
+        }
+        for x in [self.r, self.t, self.lost, self.absorbed] {
+            p.f64(x);
+        }
+        p.u64(self.interactions);
+        p.u64(self.bad);
+    }
+    fn unpack(n: usize, u: &mut crate::dist::Unpacker) -> Acc {
+        let mut a = Acc::new(n);
+        for i in 0..n {
+            a.sum[i] = u.f64();
+            a.sum2[i] = u.f64();
+            a.sum_bsdf[i] = u.f64();
+            a.hits[i] = u.u64();
+        }
+        a.r = u.f64();
+        a.t = u.f64();
+        a.lost = u.f64();
+        a.absorbed = u.f64();
+        a.interactions = u.u64();
+        a.bad = u.u64();
+        a
     }
     fn merge(&mut self, o: &Acc) {
         for i in 0..self.sum.len() {
@@ -385,13 +431,23 @@ impl Gonio {
             return Err(crate::Error::invalid("photons", "must be > 0"));
         }
         let dets = Detectors::new(&setup.detectors, setup.beam.azimuth)?;
-        Ok(Gonio { setup, dets, force_general: false, simd: true, cancel: None })
+        Ok(Gonio { setup, dets, force_general: false, simd: true, cancel: None, comm: None })
     }
 
     /// A flag that stops a run early when set (e.g. by Ctrl-C): the run returns
     /// [`crate::Error::Interrupted`] at its next group of batches. Unset, results are unchanged.
     pub fn with_cancel(mut self, cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>) -> Self {
         self.cancel = cancel;
+        self
+    }
+
+    /// Shares every run's photon batches with the other processes of `comm`: batch `b` is
+    /// traced by rank `b mod size`, the batch accumulators are exchanged whole and every rank
+    /// merges them in batch order, so each rank gets the result one process computes, bit for
+    /// bit. Every rank must make the same runs in the same order (and a cancel flag, if any,
+    /// must be set on every rank: a rank that stops alone leaves the others waiting).
+    pub fn with_comm(mut self, comm: Option<std::sync::Arc<dyn crate::dist::Comm>>) -> Self {
+        self.comm = comm;
         self
     }
 
@@ -474,8 +530,9 @@ impl Gonio {
         let n = self.setup.photons;
         let nb = n.div_ceil(BATCH);
         let ndet = self.dets.len();
-        // groups of batches bound the memory of the per-batch accumulators
-        let group = 64u64;
+        let comm = self.comm.as_deref().filter(|c| c.size() > 1);
+        // groups of batches bound the memory of the per-batch accumulators (64 per process)
+        let group = 64 * comm.map_or(1, |c| c.size() as u64);
         let mut total = Acc::new(ndet);
         let mut g0 = 0;
         while g0 < nb {
@@ -484,7 +541,8 @@ impl Gonio {
                 break;
             }
             let g1 = (g0 + group).min(nb);
-            let accs: Vec<Acc> = (g0..g1)
+            let mine: Vec<u64> = (g0..g1).filter(|&b| comm.is_none_or(|c| c.owns(b))).collect();
+            let mut accs: Vec<Acc> = mine
                 .into_par_iter()
                 .map(|b| {
                     let mut acc = Acc::new(ndet);
@@ -511,6 +569,9 @@ impl Gonio {
                     acc
                 })
                 .collect();
+            if let Some(c) = comm {
+                accs = exchange(c, ndet, g0..g1, &accs);
+            }
             for a in &accs {
                 total.merge(a);
             }

@@ -377,13 +377,23 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         checkpoint: Some(a.output.join(CHECKPOINT)),
         resume: a.resume,
         cancel: Some(util::interrupt_flag()),
+        // under MPI: every pass's light paths split across the ranks (same bits)
+        comm: crate::dist::comm(),
         ..Default::default()
+    };
+    // under MPI only rank 0 writes: the other ranks keep no checkpoint and no debug files
+    let settings = if crate::dist::is_root() {
+        settings
+    } else {
+        DelightSettings { checkpoint: None, debug: Default::default(), ..settings }
     };
     let r = delight(&desc, &views, &settings, log)?;
     // photos and re-renders are compared at the refined poses
     let views = match &r.poses {
         Some(p) => {
-            std::fs::create_dir_all(&a.output)?;
+            if crate::dist::is_root() {
+                std::fs::create_dir_all(&a.output)?;
+            }
             let tj = p.transforms_json(&views);
             util::write_bytes_atomic(
                 &a.output.join("transforms.json"),
@@ -550,9 +560,8 @@ fn write_outputs(
         hline: (a.tolerance > 0.0).then_some(100.0 * a.tolerance),
     };
     if !r.iterations.is_empty() {
-        let tmp = out.join(".convergence.tmp.png");
-        plot.save(&tmp, (640, 420))?;
-        std::fs::rename(&tmp, out.join("convergence.png"))?;
+        // written atomically (temp file + rename), by rank 0 only under MPI
+        plot.save(&out.join("convergence.png"), (640, 420))?;
     }
     let t_out = t0.elapsed();
     // re-renders and region statistics
@@ -640,6 +649,7 @@ fn write_outputs(
                 "tracer_direct_over_light_sampled_direct": i.direct_ratio.iter().map(|v| if v.is_finite() { json!(v) } else { json!(null) }).collect::<Vec<_>>(),
                 "seconds": i.seconds,
                 "light_paths": i.light_paths,
+                "comm_seconds": i.comm_seconds,
                 "texel_noise": finite_or_null(i.texel_noise_all),
                 "texel_noise_per_object": r.objects.iter().zip(&i.texel_noise).map(|(o, v)| json!({"id": o.id, "noise": finite_or_null(*v)})).collect::<Vec<_>>(),
             })
@@ -747,7 +757,16 @@ pub fn run(a: DelightArgs) -> Result<i32> {
     let log = |l: &str| eprintln!("{l}");
     util::install_interrupt_handler();
     let output_existed = a.output.exists();
-    resume::save_args(&a.output.join(CHECKPOINT))?;
+    if crate::dist::size() > 1 && a.resume {
+        anyhow::bail!(
+            "--resume runs with one process only (the checkpoint is rank 0's); continue without mpirun"
+        );
+    }
+    // under MPI only rank 0 keeps the command line and the checkpoint
+    let root = crate::dist::is_root();
+    if root {
+        resume::save_args(&a.output.join(CHECKPOINT))?;
+    }
     let report = run_pipeline(&a, &log).map_err(|e| match e.downcast_ref::<opal::error::Error>() {
         Some(opal::error::Error::Interrupted { .. }) => {
             e.context(format!(
@@ -757,12 +776,16 @@ pub fn run(a: DelightArgs) -> Result<i32> {
         }
         _ => {
             // failed (bad input, …): leave no saved command line behind unless iterations were kept
-            resume::discard_args(&a.output.join(CHECKPOINT), (!output_existed).then_some(a.output.as_path()));
+            if root {
+                resume::discard_args(&a.output.join(CHECKPOINT), (!output_existed).then_some(a.output.as_path()));
+            }
             e
         }
     })?;
     // finished: the checkpoint of the iterations is no longer needed
-    let _ = std::fs::remove_dir_all(a.output.join(CHECKPOINT));
+    if root {
+        let _ = std::fs::remove_dir_all(a.output.join(CHECKPOINT));
+    }
     if a.json {
         let mut o = std::io::stdout().lock();
         writeln!(o, "{}", serde_json::to_string_pretty(&report)?)?;

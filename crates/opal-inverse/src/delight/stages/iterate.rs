@@ -123,9 +123,17 @@ pub(in crate::delight) fn iterate(
         let c0 = StageClock::start();
         let rdesc = recovered_desc(desc, objects);
         let rscene = Scene::build(&rdesc)?;
+        let solo = opal::dist::Solo;
+        let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
         let lt = LightTraceSettings {
             paths,
-            batch_size: 1 << 20,
+            // several batches per process when the paths are split (the maps do not depend on
+            // the batch size)
+            batch_size: if comm.size() > 1 {
+                paths.div_ceil(4 * comm.size() as u64).clamp(1 << 12, 1 << 20)
+            } else {
+                1 << 20
+            },
             max_depth: -1,
             rr_depth: 5,
             seed: s.seed.wrapping_add(k as u64),
@@ -134,11 +142,14 @@ pub(in crate::delight) fn iterate(
             direct: k == 1,
         };
         // Ctrl-C during the pass stops it within a batch; the pass is dropped and the last
-        // finished iteration (already checkpointed) is what is kept
-        let Some(out) = light_tracer::trace_cancellable(&rscene, &targets, &lt, &|| {}, s.cancel.as_deref())
+        // finished iteration (already checkpointed) is what is kept. Under MPI the paths are
+        // split across the ranks (same maps, bit for bit).
+        let comm0 = comm.comm_seconds();
+        let Some(out) = light_tracer::trace_split(&rscene, &targets, &lt, &|| {}, s.cancel.as_deref(), comm)
         else {
             return Err(Error::Interrupted { kept: kept(s, k - 1) });
         };
+        let comm_seconds = comm.comm_seconds() - comm0;
         let (w, c) = c0.elapsed();
         lt_wall += w;
         lt_cpu += c;
@@ -210,6 +221,7 @@ pub(in crate::delight) fn iterate(
             light_paths: paths,
             texel_noise,
             texel_noise_all,
+            comm_seconds,
         };
         log(&format!(
             "iteration {k}: max rel. error {:.2} %, mean {:.2} % ({:.1} s, {} light paths, per-texel noise {:.1} %)",

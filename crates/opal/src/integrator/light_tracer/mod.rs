@@ -229,13 +229,29 @@ pub fn trace_cancellable(
     on_batch: &(dyn Fn() + Sync),
     cancel: Option<&std::sync::atomic::AtomicBool>,
 ) -> Option<LightTraceOutput> {
+    trace_split(scene, targets, s, on_batch, cancel, &crate::dist::Solo)
+}
+
+/// [`trace_cancellable`] with the path batches split across the processes of `comm`: batch `b`
+/// is traced by rank `b mod size`, the integer texel sums are added over the ranks (wrapping
+/// `u64` sums: exact in any order) and every rank returns the maps one process computes, bit
+/// for bit. `on_batch` counts this rank's batches only. The ranks agree on a cancellation: the
+/// pass is dropped on every rank when any rank's flag was set.
+pub fn trace_split(
+    scene: &Scene,
+    targets: &[Option<IrradianceTarget>],
+    s: &LightTraceSettings,
+    on_batch: &(dyn Fn() + Sync),
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+    comm: &dyn crate::dist::Comm,
+) -> Option<LightTraceOutput> {
     let Some(sampler) = scene.light_sampler() else {
         return Some(LightTraceOutput { maps: empty_maps(targets), paths: 0, nonfinite: 0 });
     };
     let mut shift = 0;
     loop {
         let fp = FixedPoint::new(scene, targets, s.paths, shift);
-        match trace_fixed(scene, sampler, targets, s, &fp, on_batch, Engine::Auto, cancel) {
+        match trace_fixed(scene, sampler, targets, s, &fp, on_batch, Engine::Auto, cancel, comm) {
             Ok(out) => return Some(out),
             Err(Stop::Cancelled) => return None,
             // Some shape's deposits summed to ≥ 2⁶³ units: a texel may have overflowed. Trace
@@ -271,7 +287,7 @@ enum Engine {
 }
 
 /// One pass at a fixed-point scale; `Err(Stop::Rescale(bits))` when the scale must shrink by
-/// `2^bits`, `Err(Stop::Cancelled)` when `cancel` was set during the pass.
+/// `2^bits`, `Err(Stop::Cancelled)` when `cancel` was set during the pass (on any rank).
 #[allow(clippy::too_many_arguments)]
 fn trace_fixed(
     scene: &Scene,
@@ -282,10 +298,13 @@ fn trace_fixed(
     on_batch: &(dyn Fn() + Sync),
     engine: Engine,
     cancel: Option<&std::sync::atomic::AtomicBool>,
+    comm: &dyn crate::dist::Comm,
 ) -> Result<LightTraceOutput, Stop> {
     use std::sync::atomic::{AtomicU64, Ordering};
     let batch = s.batch_size.max(1);
-    let n_batches = s.paths.div_ceil(batch);
+    // this process's batches (all of them when it is alone)
+    let mine: Vec<u64> = (0..s.paths.div_ceil(batch)).filter(|&b| comm.owns(b)).collect();
+    let n_batches = mine.len() as u64;
     // Workers pull batch indices from a counter and add into their own accumulator for the
     // whole pass. Integer sums do not depend on the order of the additions, so which worker
     // traced which batch does not change the result.
@@ -312,10 +331,11 @@ fn trace_fixed(
                 if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
                     break;
                 }
-                let b = next.fetch_add(1, Ordering::Relaxed);
-                if b >= n_batches {
+                let j = next.fetch_add(1, Ordering::Relaxed);
+                if j >= n_batches {
                     break;
                 }
+                let b = mine[j as usize];
                 let paths = b * batch..((b + 1) * batch).min(s.paths);
                 let mut ctx = PathCtx { scene, sampler, prims: &prims, sink: &mut sink, s, bad: &mut bad };
                 if let Some(tab) = &wavefront {
@@ -330,14 +350,39 @@ fn trace_fixed(
             (sink.finish(), bad)
         })
         .collect();
-    if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+    // cancelled on any rank: every rank drops the pass (a collective, so all decide alike)
+    let mut stop = [cancel.is_some_and(|c| c.load(Ordering::Relaxed)) as u64];
+    if comm.size() > 1 {
+        comm.all_sum_u64(&mut stop);
+    }
+    if stop[0] > 0 {
         return Err(Stop::Cancelled);
     }
-    let nonfinite = results.iter().map(|r| r.1).sum();
+    let mut nonfinite = [results.iter().map(|r| r.1).sum::<u64>()];
     let mut accs: Vec<Acc> = results.into_iter().map(|r| r.0).collect();
+    if accs.is_empty() {
+        // a rank without batches (more ranks than batches) adds zeros
+        accs.push(empty_acc(targets, s.direct));
+    }
     // overflow check: the exact sum of |units| of a shape bounds each of its texels' sums
-    for k in 0..targets.len() {
-        let total: u128 = accs.iter().filter_map(|a| a[k].as_ref()).map(|m| m.total).sum();
+    let mut totals: Vec<u128> = (0..targets.len())
+        .map(|k| accs.iter().filter_map(|a| a[k].as_ref()).map(|m| m.total).sum())
+        .collect();
+    if comm.size() > 1 {
+        comm.all_sum_u64(&mut nonfinite);
+        let mut p = crate::dist::Packer::default();
+        for t in &totals {
+            p.u64(*t as u64);
+            p.u64((*t >> 64) as u64);
+        }
+        let all = comm.all_gather_bytes(&p.0);
+        let mut readers: Vec<crate::dist::Unpacker> = all.iter().map(|b| crate::dist::Unpacker(b)).collect();
+        for t in totals.iter_mut() {
+            *t = readers.iter_mut().map(|r| r.u64() as u128 | (r.u64() as u128) << 64).sum();
+        }
+    }
+    let nonfinite = nonfinite[0];
+    for &total in &totals {
         if total >= 1u128 << 63 {
             let bits = (128 - total.leading_zeros()) as i32 - 62;
             return Err(Stop::Rescale(bits.max(1)));
@@ -345,33 +390,59 @@ fn trace_fixed(
     }
     // reduce: wrapping integer sums (exact since no texel's true sum reaches 2⁶³), then scale
     let (first, rest) = accs.split_first_mut().expect("at least one worker");
-    let maps = first
-        .par_iter_mut()
-        .enumerate()
-        .map(|(k, m)| {
-            let m = m.take()?;
-            let unit = fp.unit[k];
-            let reduce = |own: &Cells, direct: bool| -> Vec<[f64; 3]> {
-                (0..own.fine.len() / 3)
-                    .into_par_iter()
-                    .map(|i| {
-                        let mut sum: [i64; 3] = std::array::from_fn(|c| own.get(3 * i + c));
-                        for a in rest.iter() {
-                            let o = a[k].as_ref().expect("same targets");
-                            let o = if direct { &o.direct } else { &o.indirect };
-                            for (c, x) in sum.iter_mut().enumerate() {
-                                *x = x.wrapping_add(o.get(3 * i + c));
-                            }
+    let one = |(k, m): (usize, &mut Option<_>)| {
+        let m: fixed_point::ShapeAcc = m.take()?;
+        let unit = fp.unit[k];
+        let reduce = |own: &Cells, direct: bool| -> Vec<[f64; 3]> {
+            (0..own.fine.len() / 3)
+                .into_par_iter()
+                .map(|i| {
+                    let mut sum: [i64; 3] = std::array::from_fn(|c| own.get(3 * i + c));
+                    for a in rest.iter() {
+                        let o = a[k].as_ref().expect("same targets");
+                        let o = if direct { &o.direct } else { &o.indirect };
+                        for (c, x) in sum.iter_mut().enumerate() {
+                            *x = x.wrapping_add(o.get(3 * i + c));
                         }
-                        sum.map(|x| x as f64 * unit)
-                    })
-                    .collect()
+                    }
+                    sum.map(|x| x as f64 * unit)
+                })
+                .collect()
+        };
+        let (width, height) = (m.width, m.height);
+        let (direct, indirect) = if comm.size() > 1 {
+            let sums = |own: &Cells, direct: bool| {
+                let mut sum = local_sums(own, rest, k, direct);
+                comm.all_sum_u64(&mut sum);
+                sum.chunks_exact(3).map(|c| std::array::from_fn(|i| c[i] as i64 as f64 * unit)).collect()
             };
-            let (width, height) = (m.width, m.height);
-            let direct = reduce(&m.direct, true);
-            let indirect = reduce(&m.indirect, false);
-            Some(IrradianceMaps { width, height, direct, indirect })
-        })
-        .collect();
+            (sums(&m.direct, true), sums(&m.indirect, false))
+        } else {
+            (reduce(&m.direct, true), reduce(&m.indirect, false))
+        };
+        Some(IrradianceMaps { width, height, direct, indirect })
+    };
+    // the sums over processes are collectives: every rank makes them in the same (shape) order
+    let maps = if comm.size() > 1 {
+        first.iter_mut().enumerate().map(one).collect()
+    } else {
+        first.par_iter_mut().enumerate().map(one).collect()
+    };
     Ok(LightTraceOutput { maps, paths: s.paths, nonfinite })
+}
+
+/// The texel sums of shape `k`'s direct or indirect map over this process's workers (`own` and
+/// `rest`), as wrapping `u64`s (the bits of the `i64` sums) for the sum over processes.
+fn local_sums(own: &Cells, rest: &[Acc], k: usize, direct: bool) -> Vec<u64> {
+    (0..own.fine.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut x = own.get(i);
+            for a in rest {
+                let o = a[k].as_ref().expect("same targets");
+                x = x.wrapping_add(if direct { &o.direct } else { &o.indirect }.get(i));
+            }
+            x as u64
+        })
+        .collect()
 }

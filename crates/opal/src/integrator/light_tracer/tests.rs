@@ -358,7 +358,8 @@ fn fast_paths_and_fixed_point_match_the_generic_f64_pass_for_any_thread_count() 
     let fp = FixedPoint::new(&scene, &targets, s.paths, 0);
     let other_batches = LightTraceSettings { batch_size: 1_234, ..s };
     for (engine, s) in [(Engine::WavefrontRays, s), (Engine::Scalar, s), (Engine::Auto, other_batches)] {
-        let o = trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, engine, None).unwrap();
+        let o = trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, engine, None, &crate::dist::Solo)
+            .unwrap();
         for k in 0..2 {
             let (a, b) = (o.maps[k].as_ref().unwrap(), runs[0].maps[k].as_ref().unwrap());
             assert_eq!((&a.direct, &a.indirect), (&b.direct, &b.indirect), "{engine:?}");
@@ -391,7 +392,8 @@ fn fixed_point_overflow_is_detected_and_traced_again() {
     let out = loop {
         tries += 1;
         let fp = FixedPoint::new(&scene, &targets, s.paths, shift);
-        match trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, Engine::Auto, None) {
+        match trace_fixed(&scene, sampler, &targets, &s, &fp, &|| {}, Engine::Auto, None, &crate::dist::Solo)
+        {
             Ok(out) => break out,
             Err(Stop::Cancelled) => unreachable!("no cancel flag"),
             Err(Stop::Rescale(bits)) => {
@@ -573,7 +575,7 @@ fn engines_agree_on(scene: &Scene, n_ball: usize) {
     let fp = FixedPoint::new(scene, &targets, s.paths, 0);
     let runs: Vec<LightTraceOutput> = [Engine::Auto, Engine::WavefrontRays, Engine::Scalar]
         .into_iter()
-        .map(|e| trace_fixed(scene, sampler, &targets, &s, &fp, &|| {}, e, None).unwrap())
+        .map(|e| trace_fixed(scene, sampler, &targets, &s, &fp, &|| {}, e, None, &crate::dist::Solo).unwrap())
         .collect();
     for k in 0..2 {
         let a = runs[0].maps[k].as_ref().unwrap();
@@ -582,6 +584,40 @@ fn engines_agree_on(scene: &Scene, n_ball: usize) {
         for (e, r) in runs.iter().enumerate().skip(1) {
             let b = r.maps[k].as_ref().unwrap();
             assert_eq!((&a.direct, &a.indirect), (&b.direct, &b.indirect), "shape {k}, engine {e}");
+        }
+    }
+}
+
+/// Path batches split over 2 and 3 simulated processes (and more ranks than batches): every
+/// rank gets the one-process maps bit for bit, direct and indirect.
+#[test]
+fn split_pass_matches_for_any_process_count() {
+    // a floor inside a closed box, lit by a point light: direct and indirect deposits
+    let desc = SceneDesc {
+        shapes: vec![
+            shape("floor", floor_quad(0.9), diffuse(0.5), None),
+            shape("box", inward_box(), diffuse(0.7), None),
+        ],
+        emitters: vec![EmitterDesc::Point {
+            position: Vec3::new(0.1, 0.8, 0.2),
+            intensity: Spectrum::splat(3.0),
+        }],
+        ..Default::default()
+    };
+    let scene = Scene::build(&desc).unwrap();
+    let targets = [Some(target(8, 0.9)), None];
+    let s = LightTraceSettings { paths: 50_000, seed: 4, batch_size: 7_000, ..Default::default() };
+    let one = trace(&scene, &targets, &s, &|| {});
+    let m = one.maps[0].as_ref().unwrap();
+    assert!(m.indirect.iter().any(|t| t[0] > 0.0) && m.direct.iter().any(|t| t[0] > 0.0));
+    for n in [2, 3, 9] {
+        let all =
+            crate::dist::ThreadComm::run(n, |c| trace_split(&scene, &targets, &s, &|| {}, None, c).unwrap());
+        for o in &all {
+            let r = o.maps[0].as_ref().unwrap();
+            assert_eq!(r.direct, m.direct, "{n} ranks");
+            assert_eq!(r.indirect, m.indirect, "{n} ranks");
+            assert_eq!((o.paths, o.nonfinite), (one.paths, one.nonfinite));
         }
     }
 }

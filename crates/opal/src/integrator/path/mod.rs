@@ -12,7 +12,8 @@
 //!
 //! Determinism: pixel (x, y) of camera c draws all its numbers from
 //! `Rng::new(seed, c, y·W + x)`, its samples one after the other; rows are rendered in parallel
-//! and written in place, so the image is identical for any thread count.
+//! and written in place, so the image is identical for any thread count — and for any number of
+//! processes ([`render_split`]: row `y` on rank `y mod size`, rows exchanged whole).
 //!
 //! Environment lights (`constant`, `envmap`): a ray that leaves the scene gets their radiance
 //! (`escaped`), MIS-weighted against their next-event sampling exactly like an emitting triangle
@@ -390,14 +391,30 @@ pub fn render_cancellable(
     on_row: &(dyn Fn() + Sync),
     cancel: Option<&std::sync::atomic::AtomicBool>,
 ) -> crate::error::Result<RenderOutput> {
+    render_split(scene, cam, s, on_row, cancel, &crate::dist::Solo)
+}
+
+/// [`render_cancellable`] with the rows split across the processes of `comm`: row `y` is
+/// rendered by rank `y mod size` (each row depends only on its index and the seed), the
+/// finished rows are exchanged whole, and every rank returns the full image — the same bits
+/// as one process renders. `on_row` counts this rank's rows only.
+pub fn render_split(
+    scene: &Scene,
+    cam: usize,
+    s: &PathSettings,
+    on_row: &(dyn Fn() + Sync),
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+    comm: &dyn crate::dist::Comm,
+) -> crate::error::Result<RenderOutput> {
     let cancelled = || cancel.is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed));
     let camera = &scene.cameras[cam];
     let (w, h) = (camera.width, camera.height);
     let plan = RowPlan::choose(scene);
     let tables = matches!(plan, RowPlan::Wide(_)).then(|| wide_row::Tables::new(scene));
-    let rows: Vec<Row> = (0..h)
-        .into_par_iter()
-        .map(|y| {
+    let mine: Vec<usize> = (0..h).filter(|&y| comm.owns(y as u64)).collect();
+    let rows: Vec<Row> = mine
+        .par_iter()
+        .map(|&y| {
             let mut row = Row::new(w);
             if cancelled() {
                 return row;
@@ -415,10 +432,32 @@ pub fn render_cancellable(
     let mut image = Image::new(w, h);
     let mut stderr = Image::new(w, h);
     let mut nonfinite = 0;
-    for (y, row) in rows.into_iter().enumerate() {
-        image.data[y * w..(y + 1) * w].copy_from_slice(&row.mean);
-        stderr.data[y * w..(y + 1) * w].copy_from_slice(&row.err);
-        nonfinite += row.bad;
+    if comm.size() == 1 {
+        for (y, row) in rows.into_iter().enumerate() {
+            image.data[y * w..(y + 1) * w].copy_from_slice(&row.mean);
+            stderr.data[y * w..(y + 1) * w].copy_from_slice(&row.err);
+            nonfinite += row.bad;
+        }
+    } else {
+        let mut p = crate::dist::Packer::default();
+        for row in &rows {
+            p.u64(row.bad);
+            for v in row.mean.iter().chain(&row.err) {
+                p.f32s(&v.0);
+            }
+        }
+        let all = comm.all_gather_bytes(&p.0);
+        for (rank, bytes) in all.iter().enumerate() {
+            let mut u = crate::dist::Unpacker(bytes);
+            for y in (rank..h).step_by(comm.size()) {
+                nonfinite += u.u64();
+                for v in image.data[y * w..(y + 1) * w].iter_mut().chain(&mut stderr.data[y * w..(y + 1) * w])
+                {
+                    *v = Spectrum([u.f32(), u.f32(), u.f32()]);
+                }
+            }
+            assert!(u.is_empty(), "rank {rank} sent rows of another image");
+        }
     }
     Ok(RenderOutput { image, stderr, nonfinite, samples: (w * h) as u64 * s.spp as u64 })
 }
