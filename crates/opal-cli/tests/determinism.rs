@@ -4,68 +4,18 @@
 //! `render_cli::the_same_seed_writes_the_same_bytes_on_one_and_two_threads`).
 //!
 //! Compared: every file the command writes, byte for byte, and its `--json` text, except the
-//! fields that measure time (`seconds`, `cpu_seconds`, … listed in [`is_timing_key`]), which are
+//! fields that measure time (`seconds`, `cpu_seconds`, … listed in `support/snapshot.rs`), which are
 //! removed from JSON before comparing.
 
-use serde_json::Value;
-use std::collections::BTreeMap;
+#[path = "support/snapshot.rs"]
+mod snapshot;
+
+use snapshot::{json_without_timing, snapshot};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn opal() -> Command {
     Command::new(env!("CARGO_BIN_EXE_opal"))
-}
-
-/// JSON keys that hold wall or CPU times or measured memory (they differ between runs by
-/// nature).
-fn is_timing_key(k: &str) -> bool {
-    k.contains("seconds")
-        || k.contains("memory_mb")
-        || k.contains("rss")
-        || k.ends_with("_s")
-        || k.contains("timing")
-        || k.contains("elapsed")
-        || k.contains("per_second")
-}
-
-/// `v` without its timing fields (recursively).
-fn strip_timing(v: &mut Value) {
-    match v {
-        Value::Object(m) => {
-            m.retain(|k, _| !is_timing_key(k));
-            m.values_mut().for_each(strip_timing);
-        }
-        Value::Array(a) => a.iter_mut().for_each(strip_timing),
-        _ => {}
-    }
-}
-
-/// Every file under `dir` (relative path → bytes); `.json` files with their timing fields
-/// removed.
-fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-                continue;
-            }
-            let mut bytes = std::fs::read(&p).unwrap();
-            if p.extension().is_some_and(|x| x == "json") {
-                bytes = json_without_timing(&bytes);
-            }
-            out.insert(p.strip_prefix(dir).unwrap().to_path_buf(), bytes);
-        }
-    }
-    out
-}
-
-fn json_without_timing(bytes: &[u8]) -> Vec<u8> {
-    let mut v: Value = serde_json::from_slice(bytes).expect("valid JSON");
-    strip_timing(&mut v);
-    serde_json::to_vec_pretty(&v).unwrap()
 }
 
 /// Runs `make(threads, outdir)` for 1, 2 and 2 threads, each into a fresh folder; asserts that

@@ -8,8 +8,10 @@
 //! process and never initialises MPI). JSON files and `--json` texts are compared without their
 //! timing fields (as in `tests/determinism.rs`). Skipped, with a message, when `mpirun` is absent.
 
-use serde_json::Value;
-use std::collections::BTreeMap;
+#[path = "support/snapshot.rs"]
+mod snapshot;
+
+use snapshot::{json_without_timing, snapshot};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -41,54 +43,6 @@ fn opal(ranks: usize) -> Command {
     c.args(["--allow-run-as-root", "--oversubscribe", "--bind-to", "none", "-np", &ranks.to_string()])
         .arg(env!("CARGO_BIN_EXE_opal"));
     c
-}
-
-fn is_timing_key(k: &str) -> bool {
-    k.contains("seconds")
-        || k.contains("memory_mb")
-        || k.contains("rss")
-        || k.ends_with("_s")
-        || k.contains("timing")
-        || k.contains("elapsed")
-        || k.contains("per_second")
-}
-
-fn strip_timing(v: &mut Value) {
-    match v {
-        Value::Object(m) => {
-            m.retain(|k, _| !is_timing_key(k));
-            m.values_mut().for_each(strip_timing);
-        }
-        Value::Array(a) => a.iter_mut().for_each(strip_timing),
-        _ => {}
-    }
-}
-
-fn json_without_timing(bytes: &[u8]) -> Vec<u8> {
-    let mut v: Value = serde_json::from_slice(bytes).expect("valid JSON");
-    strip_timing(&mut v);
-    serde_json::to_vec_pretty(&v).unwrap()
-}
-
-/// Every file under `dir` (relative path → bytes; JSON without timing fields).
-fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-                continue;
-            }
-            let mut bytes = std::fs::read(&p).unwrap();
-            if p.extension().is_some_and(|x| x == "json") {
-                bytes = json_without_timing(&bytes);
-            }
-            out.insert(p.strip_prefix(dir).unwrap().to_path_buf(), bytes);
-        }
-    }
-    out
 }
 
 /// Runs `make(cmd, outdir)` without MPI and under 1, 2 and 3 ranks, each into a fresh folder,
