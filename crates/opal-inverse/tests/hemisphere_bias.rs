@@ -7,40 +7,12 @@
 //! −1.3 %, Mitsuba's +2.1 %. Run:
 //! cargo test -p opal-inverse --test hemisphere_bias --release -- --ignored --nocapture
 
-use opal::gonio::{Beam, Face, Plate, Scattering};
 use opal_inverse::measured::Measured;
-use opal_inverse::ndf_fit::{
-    DEFAULT_MIN_SNR, Family, FitOn, FitOptions, FitSetup, Model, Problem, ScaleSetup, fit,
-};
+use opal_inverse::ndf_fit::{Family, FitOptions, Model, Problem, fit};
 use std::path::Path;
 
-fn setup(rough_front: bool, photons: u64) -> FitSetup {
-    FitSetup {
-        plate: Plate {
-            ior: 1.52,
-            thickness_mm: 3.0,
-            absorption_per_mm: 0.0,
-            front: Face::Polished,
-            back: Face::Polished,
-            radius_mm: None,
-        },
-        rough_front,
-        scattering: Scattering::Single,
-        beam: Beam { azimuth: 0.0, divergence: 0.5f64.to_radians(), aperture_radius_mm: 1.0 },
-        detector_radius: 1f64.to_radians(),
-        detector_distance_mm: None,
-        photons,
-        seed: 7,
-        max_interactions: 200,
-        fit_on: FitOn::Both,
-        floor_rel: 1e-2,
-        max_iters: 40,
-        coarse_photons: FitSetup::default_coarse(photons),
-        scale: ScaleSetup::default(),
-        rel_error: 0.0,
-        min_snr: Some(DEFAULT_MIN_SNR),
-    }
-}
+mod fit_setup;
+use fit_setup::dotted_setup;
 
 fn truth(alpha: f64, f: f64) -> Model {
     let mut m = Model::new(Family::Dotted, alpha);
@@ -54,10 +26,10 @@ fn problems(photons: u64) -> (Problem, Problem) {
     let name = "dotted_ggx_a0.4_f0.25_smooth_hemi";
     let p =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/gonio").join(format!("{name}.csv"));
-    let mitsuba = Problem::new(Measured::read(&p).unwrap(), setup(false, photons)).unwrap();
+    let mitsuba = Problem::new(Measured::read(&p).unwrap(), dotted_setup(false, photons)).unwrap();
     let res = mitsuba.simulate_model(&truth(0.4, 0.25), 1001, 1_000_000).unwrap();
     let synth = Measured::from_gonio(mitsuba.gonio(), &res, "opal-synthetic");
-    let opal = Problem::new(synth, setup(false, photons)).unwrap();
+    let opal = Problem::new(synth, dotted_setup(false, photons)).unwrap();
     (mitsuba, opal)
 }
 

@@ -4,38 +4,12 @@
 //! and the coarse/full split. Run:
 //! cargo test -p opal-inverse --test hybrid_profile --release -- --ignored --nocapture
 
-use opal::gonio::{Beam, Face, Plate, Scattering};
 use opal_inverse::measured::Measured;
-use opal_inverse::ndf_fit::{DEFAULT_MIN_SNR, Family, FitOn, FitOptions, FitSetup, Problem, ScaleSetup, fit};
+use opal_inverse::ndf_fit::{Family, FitOptions, Problem, fit};
 use std::path::Path;
 
-fn setup(rough_front: bool, photons: u64) -> FitSetup {
-    FitSetup {
-        plate: Plate {
-            ior: 1.52,
-            thickness_mm: 3.0,
-            absorption_per_mm: 0.0,
-            front: Face::Polished,
-            back: Face::Polished,
-            radius_mm: None,
-        },
-        rough_front,
-        scattering: Scattering::Single,
-        beam: Beam { azimuth: 0.0, divergence: 0.5f64.to_radians(), aperture_radius_mm: 1.0 },
-        detector_radius: 1f64.to_radians(),
-        detector_distance_mm: None,
-        photons,
-        seed: 7,
-        max_interactions: 200,
-        fit_on: FitOn::Both,
-        floor_rel: 1e-2,
-        max_iters: 40,
-        coarse_photons: FitSetup::default_coarse(photons),
-        scale: ScaleSetup::default(),
-        rel_error: 0.0,
-        min_snr: Some(DEFAULT_MIN_SNR),
-    }
-}
+mod fit_setup;
+use fit_setup::dotted_setup;
 
 #[test]
 #[ignore]
@@ -43,7 +17,7 @@ fn hybrid_forced_on_dotted_plate() {
     let name = "dotted_ggx_a0.3_f0.35_smooth";
     let p =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/gonio").join(format!("{name}.csv"));
-    let problem = Problem::new(Measured::read(&p).unwrap(), setup(false, 200_000)).unwrap();
+    let problem = Problem::new(Measured::read(&p).unwrap(), dotted_setup(false, 200_000)).unwrap();
     let t0 = std::time::Instant::now();
     let r =
         fit(&problem, &FitOptions { family: Some(Family::Hybrid), shift: false, hybrid_nodes: 4 }).unwrap();

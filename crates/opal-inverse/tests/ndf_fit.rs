@@ -2,42 +2,13 @@
 //! (Student-t tail, shifted peak, multiple scattering, hybrid).
 
 use opal::bsdf::microfacet::{Ndfs, Profile};
-use opal::gonio::{Beam, DetectorGrid, DetectorLayout, Face, Gonio, GonioSetup, Plate, Scattering, Side};
+use opal::gonio::{DetectorGrid, DetectorLayout, Face, Gonio, GonioSetup, Plate, Scattering, Side};
 use opal_inverse::measured::Measured;
-use opal_inverse::ndf_fit::{
-    DEFAULT_MIN_SNR, Family, FitOn, FitOptions, FitReport, FitSetup, Problem, ScaleMode, ScaleSetup, fit,
-};
+use opal_inverse::ndf_fit::{Family, FitOptions, FitReport, FitSetup, Problem, ScaleMode, ScaleSetup, fit};
 use std::path::Path;
 
-fn setup(rough_front: bool, photons: u64) -> FitSetup {
-    let placeholder = Face::Polished;
-    FitSetup {
-        plate: Plate {
-            ior: 1.49,
-            thickness_mm: 2.0,
-            absorption_per_mm: 0.0,
-            front: placeholder.clone(),
-            back: placeholder,
-            radius_mm: None,
-        },
-        rough_front,
-        scattering: Scattering::Single,
-        beam: Beam { azimuth: 0.0, divergence: 0.5f64.to_radians(), aperture_radius_mm: 1.0 },
-        detector_radius: 1f64.to_radians(),
-        detector_distance_mm: None,
-        photons,
-        seed: 7,
-        max_interactions: 200,
-        fit_on: FitOn::Both,
-        floor_rel: 1e-2,
-        max_iters: 40,
-        coarse_photons: FitSetup::default_coarse(photons),
-        scale: ScaleSetup::default(),
-        rel_error: 0.0,
-        // the CLI's default point selection (floor 1 % or ≥ 3 standard errors)
-        min_snr: Some(DEFAULT_MIN_SNR),
-    }
-}
+mod fit_setup;
+use fit_setup::{dotted_setup, setup};
 
 fn reference(name: &str) -> Measured {
     let p =
@@ -141,9 +112,7 @@ fn reference_all_cases() {
 #[ignore]
 fn dotted_mitsuba_cases() {
     for name in ["dotted_ggx_a0.3_f0.35_smooth", "dotted_ggx_a0.3_f0.35_rough"] {
-        let mut s = setup(name.ends_with("rough"), 200_000);
-        s.plate.ior = 1.52;
-        s.plate.thickness_mm = 3.0;
+        let s = dotted_setup(name.ends_with("rough"), 200_000);
         let problem = Problem::new(reference(name), s).unwrap();
         let t0 = std::time::Instant::now();
         let r = fit(&problem, &FitOptions { family: None, shift: false, hybrid_nodes: 0 }).unwrap();
@@ -170,9 +139,7 @@ fn dotted_mitsuba_cases() {
 #[ignore]
 fn dotted_mitsuba_hemisphere_cases() {
     for name in ["dotted_ggx_a0.4_f0.25_smooth_hemi", "dotted_ggx_a0.4_f0.25_rough_hemi"] {
-        let mut s = setup(name.contains("rough"), 200_000);
-        s.plate.ior = 1.52;
-        s.plate.thickness_mm = 3.0;
+        let s = dotted_setup(name.contains("rough"), 200_000);
         let problem = Problem::new(reference(name), s).unwrap();
         assert!(problem.measured.hemisphere);
         let t0 = std::time::Instant::now();
