@@ -86,32 +86,9 @@ fn bsdf_values_match_mitsuba() {
 
 mod common;
 
-/// Renders `tests/data/mitsuba_materials/<name>/scene.xml` with Opal (`spp` samples, the
-/// scene's integrator settings) and z-tests it against Mitsuba's reference; returns the
-/// fraction of blocks within 3σ.
+/// [`common::ztest_scene`] on `tests/data/mitsuba_materials/<name>`.
 fn ztest(name: &str, spp: u32) -> f64 {
-    use opal::integrator::path::{PathSettings, render};
-    let dir =
-        std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/mitsuba_materials").join(name);
-    let desc = load_mitsuba_xml(&dir.join("scene.xml"), &[]).unwrap();
-    let scene = opal::scene::Scene::build(&desc).unwrap();
-    let it = desc.integrator.clone().unwrap_or_default();
-    let s =
-        PathSettings { spp, max_depth: it.max_depth, rr_depth: it.rr_depth, hide_emitters: false, seed: 12 };
-    let out = render(&scene, 0, &s, &|| {});
-    assert_eq!(out.nonfinite, 0);
-    let (frac, worst, mean_z) = common::block_z(&out, &dir.join("ref.exr"), &dir.join("ref_stderr.exr"));
-    eprintln!("{name}: {:.2} % of blocks within 3σ, worst |z| {worst:.2}, mean z {mean_z:+.3}", frac * 100.0);
-    if frac < 0.99 {
-        // for inspection: Opal's image and its standard error next to the temp dir's files
-        let tmp = std::env::temp_dir();
-        for (img, suffix) in [(&out.image, ""), (&out.stderr, "_stderr")] {
-            let f = std::fs::File::create(tmp.join(format!("opal_mitsuba_materials_{name}{suffix}.exr")))
-                .unwrap();
-            opal::image::write::write_exr(img, f).unwrap();
-        }
-    }
-    frac
+    common::ztest_scene("mitsuba_materials", name, spp)
 }
 
 macro_rules! zt {
