@@ -6,7 +6,16 @@
 pub struct Distribution1D {
     cdf: Vec<f64>,
     total: f64,
+    /// `cdf[1..]` padded with +∞ to [`SMALL`] entries when there are at most [`SMALL`] items
+    /// (lights): the count of entries `≤ u` is then a fixed-length, branch-free loop.
+    small: Option<[f64; SMALL]>,
+    /// Per item `i`: the first item `j ≥ i` with a non-zero probability (the last item if none):
+    /// where a search that lands on `i` ends after skipping zero-probability items.
+    skip: Vec<u32>,
 }
+
+/// Items counted by the fixed-length loop of [`Distribution1D::sample_index`].
+const SMALL: usize = 16;
 
 impl Distribution1D {
     /// Build from non-negative weights; `None` if the weights are empty, negative, non-finite or
@@ -28,7 +37,18 @@ impl Distribution1D {
         for c in &mut cdf {
             *c /= acc;
         }
-        Some(Distribution1D { cdf, total: acc })
+        let n = weights.len();
+        let small =
+            (n <= SMALL).then(|| std::array::from_fn(|k| if k < n { cdf[k + 1] } else { f64::INFINITY }));
+        let mut skip = vec![0u32; n];
+        let mut next = n - 1;
+        for i in (0..n).rev() {
+            if cdf[i + 1] - cdf[i] != 0.0 {
+                next = i;
+            }
+            skip[i] = next as u32;
+        }
+        Some(Distribution1D { cdf, total: acc, small, skip })
     }
     /// Number of items.
     pub fn len(&self) -> usize {
@@ -60,19 +80,17 @@ impl Distribution1D {
     #[inline]
     pub fn sample_index(&self, u: f32) -> (usize, f64) {
         let u = u as f64;
-        // first index with cdf[i+1] > u; a few items (lights) are counted without branches (the
-        // same count as the binary search's: the cdf is non-decreasing)
-        let below = if self.cdf.len() <= 17 {
-            self.cdf.iter().map(|&c| (c <= u) as usize).sum()
+        // first index with cdf[i+1] > u; a few items (lights) are counted without branches over
+        // a fixed length (the same count as the binary search's: the cdf is non-decreasing and
+        // cdf[0] = 0 ≤ u unless u is NaN, where both counts are 0)
+        let i = if let Some(small) = &self.small {
+            small.iter().map(|&c| (c <= u) as usize).sum()
         } else {
-            self.cdf.partition_point(|&c| c <= u)
+            self.cdf.partition_point(|&c| c <= u).saturating_sub(1)
         };
-        let mut i = below.saturating_sub(1);
-        i = i.min(self.len() - 1);
+        let i = i.min(self.len() - 1);
         // skip zero-probability items that the search may land on at their boundary
-        while self.pmf(i) == 0.0 && i + 1 < self.len() {
-            i += 1;
-        }
+        let i = self.skip[i] as usize;
         (i, self.pmf(i))
     }
 }

@@ -329,14 +329,14 @@ impl Kernel {
 }
 
 /// One diffuse path vertex for the active lanes (see the module docs), in the compilation
-/// `kernel` names.
+/// `kernel` names, written into `out` (no 700-byte result moved through the stack).
 #[inline(always)]
-pub(super) fn vertex8(inp: &VertexIn, kernel: Kernel) -> VertexOut {
+pub(super) fn vertex8(inp: &VertexIn, kernel: Kernel, out: &mut VertexOut) {
     match kernel {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Kernel::detect` returns Avx2 only when the CPU has AVX2 and FMA
-        Kernel::Avx2 => unsafe { vertex_avx2(inp) },
-        _ => vertex_lanes(inp),
+        Kernel::Avx2 => unsafe { vertex_avx2(inp, out) },
+        _ => *out = vertex_lanes(inp),
     }
 }
 
@@ -345,6 +345,6 @@ pub(super) fn vertex8(inp: &VertexIn, kernel: Kernel) -> VertexOut {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[inline(never)]
-fn vertex_avx2(inp: &VertexIn) -> VertexOut {
-    vertex_lanes(inp)
+fn vertex_avx2(inp: &VertexIn, out: &mut VertexOut) {
+    *out = vertex_lanes(inp);
 }

@@ -267,7 +267,9 @@ fn render_row_lanes(
     let mut g: Gathered = [[0.0; W]; FIELDS];
     let mut packets = [RayPacket::default(); SETS];
     let mut hits = [PacketHits::NONE; SETS];
-    let mut outs: [Option<wide::VertexOut>; SETS] = std::array::from_fn(|_| None);
+    let mut outs: [wide::VertexOut; SETS] = std::array::from_fn(|_| wide::VertexOut::default());
+    // which sets' `outs` hold this step's vertex
+    let mut shaded = [false; SETS];
     loop {
         let alive: [[bool; W]; SETS] =
             std::array::from_fn(|j| std::array::from_fn(|k| sets[j].px[k].is_some()));
@@ -285,9 +287,8 @@ fn render_row_lanes(
         accel.intersect8_many(&packets, &mut hits);
         let mut ended = [[false; W]; SETS];
         for j in 0..SETS {
-            outs[j] = None;
-            if alive[j].contains(&true) {
-                outs[j] = step(
+            shaded[j] = alive[j].contains(&true)
+                && step(
                     scene,
                     tables,
                     s,
@@ -297,11 +298,11 @@ fn render_row_lanes(
                     &mut ended[j],
                     &mut inp,
                     &mut g,
+                    &mut outs[j],
                     kernel,
                 );
-            }
         }
-        trace_shadows(scene, &mut sets, &outs);
+        trace_shadows(scene, &mut sets, &outs, &shaded);
         for (lanes, ended) in sets.iter_mut().zip(&ended) {
             for k in 0..W {
                 if !ended[k] {
@@ -339,7 +340,8 @@ type Gathered = [[f32; W]; FIELDS];
 
 /// One step after the closest hits: hit reconstruction, emission, depth limit, the lanes'
 /// random numbers, light choices and texture lookups, the wide vertex and the Russian
-/// roulette. Returns the vertex outputs (shadow rays pending) when some lane was shaded.
+/// roulette. Writes the vertex outputs (shadow rays pending) into `out` and returns true when
+/// some lane was shaded (`out` is left as it was otherwise).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn step(
@@ -352,8 +354,9 @@ fn step(
     ended: &mut [bool; W],
     inp: &mut VertexIn,
     g: &mut Gathered,
+    out: &mut wide::VertexOut,
     kernel: Kernel,
-) -> Option<wide::VertexOut> {
+) -> bool {
     let mut hit = [false; W];
     for k in 0..W {
         if alive[k] {
@@ -362,7 +365,7 @@ fn step(
         }
     }
     if !hit.contains(&true) {
-        return None;
+        return false;
     }
     gather(tables, hits, &hit, g, kernel);
     let si = interaction(g, lanes, hits);
@@ -414,7 +417,7 @@ fn step(
         any = true;
     }
     if !any {
-        return None;
+        return false;
     }
     for k in 0..W {
         let flags = g[R_FLAGS][k].to_bits();
@@ -439,7 +442,7 @@ fn step(
     inp.ng = si.ng;
     inp.ns = si.ns;
     inp.beta = lanes.beta;
-    let out = wide::vertex8(inp, kernel);
+    wide::vertex8(inp, kernel, out);
     for k in 0..W {
         if inp.active[k] == 0 {
             continue;
@@ -468,7 +471,7 @@ fn step(
         }
         lanes.beta.set(k, beta.0);
     }
-    Some(out)
+    true
 }
 
 /// Copies the hit lanes' rows into `g` (field by field; other lanes keep their values, or get
@@ -586,15 +589,21 @@ fn emission_lane(
 /// ([`crate::accel::Accel::occluded8_many`]) and adds the contributions of those that reach
 /// their light.
 #[inline(always)]
-fn trace_shadows(scene: &Scene, sets: &mut [Lanes; SETS], outs: &[Option<wide::VertexOut>; SETS]) {
+fn trace_shadows(
+    scene: &Scene,
+    sets: &mut [Lanes; SETS],
+    outs: &[wide::VertexOut; SETS],
+    shaded: &[bool; SETS],
+) {
     let shadowed: [[bool; W]; SETS] =
-        std::array::from_fn(|j| std::array::from_fn(|k| outs[j].as_ref().is_some_and(|o| o.shadow[k] != 0)));
+        std::array::from_fn(|j| std::array::from_fn(|k| shaded[j] && outs[j].shadow[k] != 0));
     if !shadowed.iter().flatten().any(|&b| b) {
         return;
     }
     let mut rays = [RayPacket::default(); SETS];
     for j in 0..SETS {
-        if let Some(out) = &outs[j] {
+        if shaded[j] {
+            let out = &outs[j];
             rays[j] = RayPacket {
                 o: [out.so.x, out.so.y, out.so.z],
                 d: [out.sd.x, out.sd.y, out.sd.z],
@@ -606,7 +615,10 @@ fn trace_shadows(scene: &Scene, sets: &mut [Lanes; SETS], outs: &[Option<wide::V
     let mut blocked = [0u32; SETS];
     scene.accel().occluded8_many(&rays, &mut blocked);
     for j in 0..SETS {
-        let Some(out) = &outs[j] else { continue };
+        if !shaded[j] {
+            continue;
+        }
+        let out = &outs[j];
         for k in 0..W {
             if shadowed[j][k] && blocked[j] >> k & 1 == 0 {
                 let l = Spectrum(sets[j].l.get(k)) + Spectrum(out.contrib.get(k));
