@@ -8,7 +8,7 @@ pub struct Distribution1D {
     total: f64,
     /// `cdf[1..]` padded with +∞ to [`SMALL`] entries when there are at most [`SMALL`] items
     /// (lights): the count of entries `≤ u` is then a fixed-length, branch-free loop.
-    small: Option<[f64; SMALL]>,
+    small: Option<Box<[f64; SMALL]>>,
     /// Per item `i`: the first item `j ≥ i` with a non-zero probability (the last item if none):
     /// where a search that lands on `i` ends after skipping zero-probability items.
     skip: Vec<u32>,
@@ -38,8 +38,8 @@ impl Distribution1D {
             *c /= acc;
         }
         let n = weights.len();
-        let small =
-            (n <= SMALL).then(|| std::array::from_fn(|k| if k < n { cdf[k + 1] } else { f64::INFINITY }));
+        let small = (n <= SMALL)
+            .then(|| Box::new(std::array::from_fn(|k| if k < n { cdf[k + 1] } else { f64::INFINITY })));
         let mut skip = vec![0u32; n];
         let mut next = n - 1;
         for i in (0..n).rev() {
