@@ -15,8 +15,8 @@
 //! almost no pixel of an 80 k-triangle scan in 256² views was pure (1.4 % of its texels seen).
 //! The super-resolution uses a looser set, [`PureBuffer::covered`]: also the pixels across gentle
 //! creases (its operator follows each sub-pixel ray to its own facet).
-//! Tests: `smooth_scan_pixels_are_pure_creases_are_not`, `gentle_crease_pixels_are_covered_not_pure`
-//! below.
+//! Tests: `smooth_scan_pixels_are_pure_creases_are_not`, `gentle_crease_pixels_are_covered_not_pure`,
+//! `flat_scene_covered_equals_pure` below.
 
 // Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
 #![allow(clippy::needless_range_loop)]
