@@ -14,7 +14,8 @@
 //!    bilinear taps are "pure" pixels of the same shape and plane ([`views::pure_buffer`]);
 //!    views are averaged with cos θ (surface normal · direction to the camera) weights; after
 //!    the first light-tracing pass (step 6) it is replaced by the multi-view super-resolved map
-//!    ([`superres`], unless `superres` is `None`) whose prior acts on `L / (Ed + Ei)`, the
+//!    ([`superres`], unless `superres` is `None`; it also uses the pixels across gentle creases,
+//!    [`views::PureBuffer::covered`]) whose prior acts on `L / (Ed + Ei)`, the
 //!    albedo up to a constant (the indirect part smoothed over resolution/16 texels);
 //! 3. objects close to an emitter get a 3×3 median filter on `L` first; holes of `L` are
 //!    inpainted ([`inpaint`]) for previews;

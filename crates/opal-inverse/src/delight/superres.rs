@@ -32,7 +32,8 @@
 //!
 //! Parameters: [`SrSettings`]. Conventions: texel (x, y) has its centre at
 //! uv = ((x+½)/W, (y+½)/H) (Mitsuba's bitmap lookup, clamp wrap); only pixels whose S² sub-pixel
-//! rays all hit the object (and are *pure* in [`super::views::PureBuffer`]) are used, so
+//! rays all hit the object (and that it *covers* in [`super::views::PureBuffer::covered`]: pure
+//! pixels plus those across gentle creases, which the per-ray model represents) are used, so
 //! occlusion and anti-aliased edges next to bright emitters never enter; prior edges never cross
 //! a chart seam. A texel counts as observed when the pixels covering it give it a total weight ≥
 //! [`SrSettings::min_weight`].
@@ -207,7 +208,7 @@ fn view_rows(scene: &Scene, shape: u32, a: &Atlas, view: &View, pure: &PureBuffe
             let mut rows = Vec::new();
             'pix: for px in 0..cam.width {
                 let k = py * cam.width + px;
-                if pure.shape[k] != shape {
+                if pure.covered[k] != shape {
                     continue;
                 }
                 let yv = view.image.data[k];

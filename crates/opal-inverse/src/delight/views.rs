@@ -13,7 +13,10 @@
 //! tessellated curved surfaces (scans: facets smaller than a pixel) "the same plane" is the
 //! pixel-scale plane through the corner hits (the smooth rule of [`pure_buffer`]); without it
 //! almost no pixel of an 80 k-triangle scan in 256² views was pure (1.4 % of its texels seen).
-//! Tests: `smooth_scan_pixels_are_pure_creases_are_not` below.
+//! The super-resolution uses a looser set, [`PureBuffer::covered`]: also the pixels across gentle
+//! creases (its operator follows each sub-pixel ray to its own facet).
+//! Tests: `smooth_scan_pixels_are_pure_creases_are_not`, `gentle_crease_pixels_are_covered_not_pure`,
+//! `flat_scene_covered_equals_pure` below.
 
 // Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
 #![allow(clippy::needless_range_loop)]
@@ -211,6 +214,15 @@ pub struct PureBuffer {
     /// point the pixel may be matched with: `FLAT_COS` (0.999, ~2.5°) on a flat pixel, the
     /// facets' spread plus [`SMOOTH_MARGIN_DEG`] on a smooth one.
     pub min_cos: Vec<f32>,
+    /// Shape index per pixel or [`MIXED`] under the looser rule of the super-resolution: the
+    /// pixel shows one shape entirely (its centre and four inner-corner rays hit it) and its
+    /// five facets lie pairwise within [`SMOOTH_MAX_DEG`]: every pure pixel, plus the pixels
+    /// across the gentle creases of a faceted curved surface (a scan), whose hit points leave
+    /// the pixel's plane. Per-texel back-projection cannot use those (a texel would take the
+    /// average of two facets), but the super-resolution follows each sub-pixel ray to its own
+    /// surface point, so a crease inside the pixel is part of its model. Sharp edges (a box's
+    /// faces, folds beyond [`SMOOTH_MAX_DEG`]) stay excluded, as do pixels mixing shapes.
+    pub covered: Vec<u32>,
 }
 
 /// Normals within ~2.5° (cosine 0.999): the same plane.
@@ -231,40 +243,49 @@ pub const SMOOTH_MARGIN_DEG: f32 = 5.0;
 /// the plane; a flat pixel's classification is the same as before the smooth rule.
 pub fn pure_buffer(scene: &Scene, cam: &Camera) -> PureBuffer {
     let (w, h) = (cam.width, cam.height);
-    let rows: Vec<Vec<(u32, Vec3, f32)>> =
+    let rows: Vec<Vec<(u32, Vec3, f32, u32)>> =
         (0..h).into_par_iter().map(|y| (0..w).map(|x| pure_pixel(scene, cam, x, y)).collect()).collect();
     let mut shape = Vec::with_capacity(w * h);
     let mut normal = Vec::with_capacity(w * h);
     let mut min_cos = Vec::with_capacity(w * h);
-    for (s, n, c) in rows.into_iter().flatten() {
+    let mut covered = Vec::with_capacity(w * h);
+    for (s, n, c, cv) in rows.into_iter().flatten() {
         shape.push(s);
         normal.push(n);
         min_cos.push(c);
+        covered.push(cv);
     }
-    PureBuffer { width: w, height: h, shape, normal, min_cos }
+    PureBuffer { width: w, height: h, shape, normal, min_cos, covered }
 }
 
-/// One pixel of [`pure_buffer`]: (shape or [`MIXED`], normal, least matching cosine).
-fn pure_pixel(scene: &Scene, cam: &Camera, x: usize, y: usize) -> (u32, Vec3, f32) {
+/// One pixel of [`pure_buffer`]: (shape or [`MIXED`], normal, least matching cosine, covering
+/// shape of [`PureBuffer::covered`]).
+fn pure_pixel(scene: &Scene, cam: &Camera, x: usize, y: usize) -> (u32, Vec3, f32, u32) {
     let c = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
     let Some(h0) = scene.intersect(&cam.generate_ray(c)) else {
-        return (MIXED, Vec3::ZERO, FLAT_COS);
+        return (MIXED, Vec3::ZERO, FLAT_COS, MIXED);
     };
     let mut corners = Vec::with_capacity(4);
     for d in [Vec2::new(-0.45, -0.45), Vec2::new(0.45, -0.45), Vec2::new(-0.45, 0.45), Vec2::new(0.45, 0.45)]
     {
         match scene.intersect(&cam.generate_ray(c + d)) {
             Some(hi) if hi.shape == h0.shape => corners.push(hi),
-            _ => return (MIXED, h0.ng, FLAT_COS),
+            _ => return (MIXED, h0.ng, FLAT_COS, MIXED),
         }
     }
     if corners.iter().all(|hi| hi.ng.dot(h0.ng) > FLAT_COS) {
-        return (h0.shape, h0.ng, FLAT_COS);
+        return (h0.shape, h0.ng, FLAT_COS, h0.shape);
     }
+    // covered (the super-resolution's rule): no fold sharper than SMOOTH_MAX_DEG between any
+    // two of the five facets
+    let five: Vec<Vec3> = std::iter::once(h0.ng).chain(corners.iter().map(|hi| hi.ng)).collect();
+    let gentle_cos = SMOOTH_MAX_DEG.to_radians().cos();
+    let gentle = (0..5).all(|i| (i + 1..5).all(|j| five[i].dot(five[j]) >= gentle_cos));
+    let covered = if gentle { h0.shape } else { MIXED };
     // smooth: the plane through the corner hits (diagonals (−,−)→(+,+) and (+,−)→(−,+))
     let (d1, d2) = (corners[3].p - corners[0].p, corners[2].p - corners[1].p);
     let chord = d1.length().max(d2.length());
-    let Some(mut n) = d1.cross(d2).try_normalize() else { return (MIXED, h0.ng, FLAT_COS) };
+    let Some(mut n) = d1.cross(d2).try_normalize() else { return (MIXED, h0.ng, FLAT_COS, covered) };
     if n.dot(h0.ng) < 0.0 {
         n = -n;
     }
@@ -274,10 +295,11 @@ fn pure_pixel(scene: &Scene, cam: &Camera, x: usize, y: usize) -> (u32, Vec3, f3
         .all(|hi| (hi.p - centroid).dot(n).abs() <= SMOOTH_PLANE_TOL * chord);
     let spread = std::iter::once(&h0).chain(&corners).map(|hi| hi.ng.dot(n)).fold(1f32, f32::min);
     if !flat_enough || spread < SMOOTH_MAX_DEG.to_radians().cos() {
-        return (MIXED, h0.ng, FLAT_COS);
+        return (MIXED, h0.ng, FLAT_COS, covered);
     }
     let min_cos = (spread.clamp(-1.0, 1.0).acos() + SMOOTH_MARGIN_DEG.to_radians()).cos().min(FLAT_COS);
-    (h0.shape, n, min_cos)
+    // a pure pixel is always covered
+    (h0.shape, n, min_cos, h0.shape)
 }
 
 #[cfg(test)]
@@ -370,5 +392,110 @@ mod tests {
         assert_eq!(cube_edge_pure, 0, "pixels on the cube's edges must be mixed");
         // a flat pixel keeps the strict plane test, a smooth one a wider one
         assert!(pb.min_cos.iter().all(|&c| c <= FLAT_COS));
+        // the super-resolution's rule: every pure pixel is covered, a 90° edge is not
+        assert!(pb.shape.iter().zip(&pb.covered).all(|(&s, &c)| s == MIXED || c == s));
+        let cube_edge_covered = (0..cam.width * cam.height)
+            .filter(|&k| {
+                let r =
+                    cam.generate_ray(Vec2::new((k % cam.width) as f32 + 0.5, (k / cam.width) as f32 + 0.5));
+                scene.intersect(&r).is_some_and(|h| {
+                    let q = (h.p - Vec3::new(0.6, 0.0, 0.0)).abs();
+                    h.shape == 1 && [q.x, q.y, q.z].iter().filter(|&&c| c > 0.3 - 0.004).count() >= 2
+                })
+            })
+            .filter(|&k| pb.covered[k] != MIXED)
+            .count();
+        assert_eq!(cube_edge_covered, 0, "a 90° edge is not covered");
+    }
+
+    /// A ridge of two planes folded by 20° seen from the front (64², camera rolled): the pixels across the
+    /// crease are not pure (their hit points leave the pixel's plane) but covered (a fold gentler
+    /// than `SMOOTH_MAX_DEG`), the pixels beside it are both.
+    #[test]
+    fn gentle_crease_pixels_are_covered_not_pure() {
+        let a = 10f32.to_radians().tan();
+        let ridge = opal::geometry::TriangleMesh {
+            positions: vec![
+                Vec3::new(-1.0, -1.0, -a),
+                Vec3::new(0.0, -1.0, 0.0),
+                Vec3::new(0.0, 1.0, 0.0),
+                Vec3::new(-1.0, 1.0, -a),
+                Vec3::new(1.0, -1.0, -a),
+                Vec3::new(1.0, 1.0, -a),
+            ],
+            normals: vec![],
+            uvs: vec![],
+            indices: vec![[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]],
+        };
+        // rolled by 10° so the crease crosses the pixels at every sub-pixel offset
+        let up = Vec3::new(10f32.to_radians().sin(), 10f32.to_radians().cos(), 0.0);
+        let mut to_world = Mat4::look_at_rh(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, up).inverse();
+        to_world *= Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
+        let desc = SceneDesc {
+            shapes: vec![ShapeDesc {
+                id: "ridge".into(),
+                mesh: ridge,
+                bsdf: BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(Spectrum::splat(0.5)) },
+                emitter: None,
+                origin: None,
+            }],
+            sensors: vec![SensorDesc {
+                id: "c".into(),
+                to_world,
+                fov_x_deg: 30.0,
+                width: 64,
+                height: 64,
+                near_clip: 1e-3,
+                far_clip: 1e3,
+                spp: None,
+            }],
+            ..Default::default()
+        };
+        let scene = Scene::build(&desc).unwrap();
+        let cam = &scene.cameras[0];
+        let pb = pure_buffer(&scene, cam);
+        let px = 2.0 * 3.0 * 15f32.to_radians().tan() / 64.0; // pixel width at the ridge
+        let (mut crease, mut crease_pure, mut crease_covered, mut beside, mut beside_pure) = (0, 0, 0, 0, 0);
+        for y in 4..60 {
+            for x in 0..64 {
+                let Some(h) = scene.intersect(&cam.generate_ray(Vec2::new(x as f32 + 0.5, y as f32 + 0.5)))
+                else {
+                    continue;
+                };
+                let k = y * 64 + x;
+                if h.p.x.abs() < 0.15 * px {
+                    crease += 1;
+                    crease_pure += (pb.shape[k] != MIXED) as usize;
+                    crease_covered += (pb.covered[k] == 0) as usize;
+                } else if h.p.x.abs() > 1.5 * px && h.p.x.abs() < 0.9 {
+                    beside += 1;
+                    beside_pure += (pb.shape[k] == 0 && pb.covered[k] == 0) as usize;
+                }
+            }
+        }
+        assert!(crease > 10, "{crease}");
+        assert_eq!(crease_pure, 0, "crease pixels are not pure");
+        assert_eq!(crease_covered, crease, "crease pixels are covered");
+        assert_eq!(beside_pure, beside, "pixels beside the crease are pure and covered");
+    }
+
+    /// The reference Cornell box (walls and boxes: flat faces meeting at 90°) at 128² from every
+    /// sensor: the looser rule of the super-resolution admits no pixel the pure rule rejects, so
+    /// its results on such scenes do not depend on it.
+    #[test]
+    fn flat_scene_covered_equals_pure() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox");
+        let mut desc = opal::scene::load::load_mitsuba_xml(&dir.join("scene.xml"), &[]).unwrap();
+        for s in &mut desc.sensors {
+            s.width = 128;
+            s.height = 128;
+        }
+        let scene = Scene::build(&desc).unwrap();
+        assert!(!scene.cameras.is_empty());
+        for cam in &scene.cameras {
+            let pb = pure_buffer(&scene, cam);
+            assert!(pb.shape.iter().filter(|&&s| s == MIXED).count() > 0);
+            assert_eq!(pb.shape, pb.covered);
+        }
     }
 }

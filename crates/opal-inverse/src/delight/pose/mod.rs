@@ -303,7 +303,8 @@ pub fn erode(pb: &PureBuffer, r: usize) -> PureBuffer {
             s0
         })
         .collect();
-    PureBuffer { width: w, height: h, shape, normal: pb.normal.clone(), min_cos: pb.min_cos.clone() }
+    let covered = shape.clone();
+    PureBuffer { width: w, height: h, shape, normal: pb.normal.clone(), min_cos: pb.min_cos.clone(), covered }
 }
 
 /// Luminance map of one object from `views` (pure buffers `pure`, eroded), extended over the
