@@ -364,7 +364,7 @@ impl LightSampler {
         Distribution1D::new(&w).map(|dist| LightSampler { dist })
     }
     /// Picks a light: (index, probability) — the first two results of [`LightSampler::sample`].
-    #[inline]
+    #[inline(always)]
     pub fn choose(&self, u: f32) -> (usize, f32) {
         let (i, p) = self.dist.sample_index(u);
         (i, p as f32)

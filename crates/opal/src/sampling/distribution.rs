@@ -77,7 +77,7 @@ impl Distribution1D {
     }
 
     /// The index and pmf of [`Distribution1D::sample`], without the re-scaled number.
-    #[inline]
+    #[inline(always)]
     pub fn sample_index(&self, u: f32) -> (usize, f64) {
         let u = u as f64;
         // first index with cdf[i+1] > u; a few items (lights) are counted without branches over
