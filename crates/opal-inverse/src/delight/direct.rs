@@ -1,10 +1,12 @@
 //! Direct irradiance per texel (step 4 of the pipeline): light sampling with stratified
 //! positions and shadow rays, every light at every texel with the closed-form unoccluded
 //! irradiance of triangle lights and of delta lights (point, spot, directional: one incident
-//! direction) as a control variate; environment lights (`constant`, `envmap`) by their
-//! importance sampling (unbounded shadow rays), without a closed form when the scene has at most
-//! [`MAX_LIGHTS_PER_TEXEL`] lights (power-proportional light choice otherwise), and an adaptive
-//! pilot that re-estimates only penumbra texels with the full sample count.
+//! direction) as a control variate; environment lights (`constant`, `envmap`),
+//! when the scene has at most [`MAX_LIGHTS_PER_TEXEL`] lights, by their importance sampling
+//! combined with as many cosine-weighted directions by multiple importance sampling
+//! ([`env_direct`]; unbounded shadow rays; no closed form, so always at the full count), by the
+//! map's sampling alone with the power-proportional light choice otherwise; an adaptive pilot
+//! re-estimates only penumbra texels with the full sample count.
 //! Tests (below): the closed form against quadrature, the adaptive estimate against the
 //! full one, and a floor under a directional, a spot and a constant environment light against
 //! their analytic irradiance.
@@ -128,6 +130,16 @@ fn texel_direct(scene: &Scene, a: &Atlas, i: usize, side: u32, rng: &mut Rng) ->
     if per_light {
         let mut mixed = false;
         for li in 0..scene.lights.len() {
+            if matches!(scene.lights[li], opal::light::Light::Env(_)) {
+                let ev = env_direct(scene, &scene.lights[li], (p, ng, ns), side, rng);
+                for c in 0..3 {
+                    e[c] += ev[c];
+                }
+                // no closed form: a pilot that saw the map entirely hidden (or below the
+                // horizon) proves nothing, so the full count always decides
+                mixed = true;
+                continue;
+            }
             let (mut all, mut vis) = ([0f64; 3], [0f64; 3]);
             let (mut seen, mut hidden) = (false, false);
             for k in 0..n {
@@ -174,6 +186,58 @@ fn texel_direct(scene: &Scene, a: &Atlas, i: usize, side: u32, rng: &mut Rng) ->
         }
     }
     (e.map(|v| (v / n as f64) as f32), true)
+}
+
+/// Irradiance at `p` (geometric normal `ng`, shading normal `ns`) from an environment light
+/// `l`: `side`² stratified samples of the map's importance sampling and as many stratified
+/// cosine-weighted directions, combined by the balance heuristic (multiple importance
+/// sampling), each with its shadow ray. The map's sampling follows its luminance, so a small
+/// bright sun takes most of its samples while a large dim sky of another colour (blue) is
+/// sampled rarely; the cosine directions cover that sky. Per-texel noise matters beyond its
+/// average: `Kd = πL/(Ed + Ei)` is a ratio, biased upwards by `Ed`'s relative variance.
+fn env_direct(
+    scene: &Scene,
+    l: &opal::light::Light,
+    (p, ng, ns): (Vec3, Vec3, Vec3),
+    side: u32,
+    rng: &mut Rng,
+) -> [f64; 3] {
+    let inv_pi = std::f32::consts::FRAC_1_PI;
+    let frame = opal::math::Frame::from_normal(ns);
+    let mut e = [0f64; 3];
+    let n = side * side;
+    let strat = |k: u32, rng: &mut Rng| {
+        let (sx, sy) = (k % side, k / side);
+        Vec2::new((sx as f32 + rng.next_f32()) / side as f32, (sy as f32 + rng.next_f32()) / side as f32)
+    };
+    let mut add = |li: opal::spectrum::Spectrum, w: f32, wi: Vec3| {
+        if !scene.occluded(&opal::integrator::spawn_ray(p, ng, wi)) {
+            for c in 0..3 {
+                e[c] += (li[c] * w) as f64;
+            }
+        }
+    };
+    for k in 0..n {
+        let (u_light, u_cos) = (strat(k, rng), strat(k, rng));
+        // the map's sample
+        if let Some(s) = l.sample_li(p, u_light) {
+            let cos = ns.dot(s.wi);
+            if s.pdf > 0.0 && cos > 0.0 && ng.dot(s.wi) > 0.0 {
+                add(s.li, cos / (s.pdf + cos * inv_pi), s.wi);
+            }
+        }
+        // the cosine-weighted direction
+        let local = opal::sampling::square_to_cosine_hemisphere(u_cos);
+        let wi = frame.to_world(local);
+        let pc = local.z * inv_pi;
+        if pc > 0.0 && ng.dot(wi) > 0.0 {
+            let li = l.le_escaped(wi);
+            if !li.is_black() {
+                add(li, local.z / (l.pdf_escaped(wi) + pc), wi);
+            }
+        }
+    }
+    e.map(|v| v / n as f64)
 }
 
 /// Unoccluded irradiance (cosine-weighted about `ns`) at `p` from a light that is a delta in
