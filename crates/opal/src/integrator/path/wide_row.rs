@@ -175,8 +175,9 @@ struct Lanes {
 }
 
 impl Lanes {
-    /// Starts lane `k`'s next sample: the camera ray through a jittered point of its pixel.
-    #[inline]
+    /// Starts lane `k`'s next sample: the camera ray through a jittered point of its pixel
+    /// (inlined into the row's AVX2 compilation).
+    #[inline(always)]
     fn start_sample(&mut self, k: usize, scene: &Scene, cam: usize, y: usize) {
         let px = self.px[k].as_mut().expect("a lane with a pixel");
         let p = Vec2::new(px.x as f32 + px.rng.next_f32(), y as f32 + px.rng.next_f32());
