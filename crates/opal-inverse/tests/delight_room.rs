@@ -364,13 +364,15 @@ fn mitsuba_room_perturbed_poses() {
             break v.normalize();
         }
     };
+    // OPAL_POSE_AMOUNT: a multiple of the perturbation (0: the exact poses, refined all the same)
+    let amount: f64 = std::env::var("OPAL_POSE_AMOUNT").map_or(1.0, |v| v.parse().expect("OPAL_POSE_AMOUNT"));
     let mut views = truth.clone();
     for v in &mut views {
         let m = v.camera.to_world.as_dmat4();
-        let deg = 0.15 + 0.15 * rnd();
+        let deg = amount * (0.15 + 0.15 * rnd());
         // one pixel at the scene centre's distance
         let px = 2.0 * v.camera.tan_half_x as f64 / v.camera.width as f64;
-        let t = (m.w_axis.truncate() - centre).length() * px;
+        let t = amount * (m.w_axis.truncate() - centre).length() * px;
         let (axis, dir) = (unit(&mut rnd), unit(&mut rnd));
         v.camera = camera_with(&v.camera, compose(m, axis * deg.to_radians(), dir * t));
         let (r, d) = pose_error(m, v.camera.to_world.as_dmat4());
@@ -389,7 +391,16 @@ fn mitsuba_room_perturbed_poses() {
         Ok(other) => panic!("OPAL_POSE_PIVOT: unknown {other}"),
         Err(_) => {}
     }
-    println!("pose settings: prior {:?} px, pivot at scene {}", poses.prior_px, poses.pivot_at_scene);
+    match std::env::var("OPAL_POSE_JOINT").as_deref() {
+        Ok("on") => poses.joint = true,
+        Ok("off") => poses.joint = false,
+        Ok(other) => panic!("OPAL_POSE_JOINT: unknown {other}"),
+        Err(_) => {}
+    }
+    println!(
+        "pose settings: prior {:?} px, pivot at scene {}, joint {}",
+        poses.prior_px, poses.pivot_at_scene, poses.joint
+    );
     let s = DelightSettings { poses, ..settings(ViewGainMode::Fixed) };
     let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
     if let Some(p) = &r.poses {

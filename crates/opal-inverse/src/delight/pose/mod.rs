@@ -40,6 +40,7 @@
 //! every camera perturbed).
 
 mod edges;
+mod joint;
 mod render;
 pub mod solve;
 #[cfg(test)]
@@ -116,6 +117,11 @@ pub struct PoseSettings {
     /// 6-parameter alignments ([`AlignSettings::pivot_at_scene`]); default off (measured: no
     /// better on the Mitsuba room).
     pub pivot_at_scene: bool,
+    /// After the per-view alignments of each round, one joint Gauss–Newton step over all
+    /// views' poses that also linearises each prediction in the poses of the views its maps
+    /// came from (`joint.rs`); the common motion is then not applied separately (the joint
+    /// step contains it).
+    pub joint: bool,
 }
 
 impl Default for PoseSettings {
@@ -133,6 +139,7 @@ impl Default for PoseSettings {
             tolerance_deg: 0.0,
             prior_px: None,
             pivot_at_scene: false,
+            joint: true,
         }
     }
 }
@@ -410,6 +417,20 @@ pub fn refine_poses(
     let (lo, hi) = scene.bounds();
     let centre = (0.5 * (lo + hi)).as_dvec3();
     let mut active = vec![true; views.len()];
+    // the finest level's blurred photos (the joint step's cross terms)
+    let sigma_fine = s.sigmas.last().copied().unwrap_or(1.0);
+    let levels: Vec<solve::Level> = if s.joint {
+        views
+            .iter()
+            .zip(&photos)
+            .map(|(v, y)| {
+                let (w, h) = (v.camera.width, v.camera.height);
+                solve::Level { w, h, y: render::blur(y, w, h, sigma_fine).0 }
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     for round in 0..s.rounds.max(1) {
         let current: Vec<View> = views
             .iter()
@@ -422,6 +443,12 @@ pub fn refine_poses(
             .collect();
         let pure: Vec<PureBuffer> =
             current.iter().map(|v| erode(&views::pure_buffer(scene, &v.camera), s.edge_margin)).collect();
+        let depths: Vec<Vec<f32>> = if s.joint {
+            current.iter().map(|v| joint::depth_buffer(scene, &v.camera)).collect()
+        } else {
+            Vec::new()
+        };
+        let mut joint_rows = Vec::new();
         let start = poses.clone();
         let mut next = poses.clone();
         let mut edges: Vec<Option<solve::EdgeSystem>> = vec![None; views.len()];
@@ -468,6 +495,21 @@ pub fn refine_poses(
                 fit.rms_before,
                 fit.rms_after
             ));
+            if s.joint {
+                let ol: Vec<joint::Other> = others
+                    .iter()
+                    .map(|&j| joint::Other {
+                        j,
+                        cam: &current[j].camera,
+                        level: &levels[j],
+                        pure: &pure[j],
+                        depth: &depths[j],
+                    })
+                    .collect();
+                let cam = camera_with(&current[k].camera, fit.to_world);
+                joint_rows
+                    .push(joint::view_rows(k, scene, &cam, &levels[k], &predict, fit.scale, sigma_fine, &ol));
+            }
             next[k] = fit.to_world;
             edges[k] = fit.edges.clone();
             if round == 0 {
@@ -493,7 +535,34 @@ pub fn refine_poses(
                 active[k] = judge(f, given[k], poses[k], scene_depth(views, k, scene), s).is_none();
             }
         }
-        if s.common_motion {
+        let mut joint_done = false;
+        if s.joint {
+            let rot_only = round < s.rotation_rounds.min(s.rounds.max(1) - 1);
+            let npar = if rot_only || dof == PoseDof::Rotation { 3 } else { 6 };
+            let since: Vec<[f64; 6]> =
+                (0..views.len()).map(|j| joint::camera_frame_move(start[j], poses[j])).collect();
+            if let Some(d) = joint::joint_step(&joint_rows, &since, views.len(), npar) {
+                for k in 0..views.len() {
+                    if active[k] && joint_rows.iter().any(|r| r.k == k) {
+                        let m = compose(
+                            poses[k],
+                            DVec3::new(d[k][0], d[k][1], d[k][2]),
+                            DVec3::new(d[k][3], d[k][4], d[k][5]),
+                        );
+                        let (a, dd) = solve_error(poses[k], m);
+                        log(&format!(
+                            "pose {} round {}: joint step {a:.4}° {dd:.3e}",
+                            views[k].name,
+                            round + 1
+                        ));
+                        moved = moved.max(a.max((dd / scene_depth(views, k, scene)).to_degrees()));
+                        poses[k] = m;
+                    }
+                }
+                joint_done = true;
+            }
+        }
+        if s.common_motion && !joint_done {
             let sys: Vec<(DMat4, solve::EdgeSystem)> = (0..views.len())
                 .filter(|&k| active[k])
                 .filter_map(|k| Some((poses[k], edges[k].clone()?)))

@@ -146,3 +146,31 @@ fn common_motion_of_all_views_recovered() {
     eprintln!("worst mean reprojection error: {with:.3} px with the common motion, {without:.3} px without");
     assert!(with < 0.15 && with < 0.5 * without, "{with:.3} px with, {without:.3} px without");
 }
+
+#[test]
+#[ignore]
+fn tmp_sweep() {
+    let (scene, truth, atlases, _) = setup();
+    let objects: Vec<(u32, &Atlas)> = atlases.iter().enumerate().map(|(k, a)| (k as u32, a)).collect();
+    let mut given = truth.clone();
+    for (k, v) in given.iter_mut().enumerate() {
+        let deg = 0.15 + 0.15 * (k as f64 / 5.0);
+        let m = perturb(v.camera.to_world.as_dmat4(), 100 + k as u64, deg, 0.033);
+        v.camera = camera_with(&v.camera, m);
+    }
+    for joint in [false, true] {
+        for rounds in [2, 3, 4, 6, 8] {
+            let s = PoseSettings { mode: PoseRefinement::Full, rounds, joint, ..Default::default() };
+            let (rep, _) = refine_poses(&scene, &objects, &given, &s, &|_| {});
+            let e: Vec<f64> = rep
+                .views
+                .iter()
+                .enumerate()
+                .map(|(k, p)| {
+                    reprojection(&scene, &truth[k].camera, &camera_with(&truth[k].camera, p.to_world)).0
+                })
+                .collect();
+            eprintln!("joint {joint} rounds {rounds}: {:.3?} mean {:.3}", e, e.iter().sum::<f64>() / 6.0);
+        }
+    }
+}
