@@ -397,6 +397,18 @@ fn mitsuba_room_perturbed_poses() {
         Ok(other) => panic!("OPAL_POSE_JOINT: unknown {other}"),
         Err(_) => {}
     }
+    if let Ok(v) = std::env::var("OPAL_POSE_STEP_TOL") {
+        poses.step_tolerance = v.parse().expect("OPAL_POSE_STEP_TOL: radians");
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_FINE_MARGIN") {
+        poses.fine_edge_margin = v.parse().expect("OPAL_POSE_FINE_MARGIN");
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_LINEAR_BANDS") {
+        poses.linear_bands = v.parse().expect("OPAL_POSE_LINEAR_BANDS");
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_ROUNDS") {
+        poses.rounds = v.parse().expect("OPAL_POSE_ROUNDS");
+    }
     println!(
         "pose settings: prior {:?} px, pivot at scene {}, joint {}",
         poses.prior_px, poses.pivot_at_scene, poses.joint

@@ -40,6 +40,7 @@
 //! every camera perturbed).
 
 mod edges;
+mod extrapolate;
 mod joint;
 mod render;
 pub mod solve;
@@ -97,6 +98,14 @@ pub struct PoseSettings {
     /// are extended over the gap from the object's side, so the edges of the prediction sit
     /// where the geometry puts them.
     pub edge_margin: usize,
+    /// [`Self::edge_margin`] in the rounds after the first that refines everything asked for
+    /// (the views are then within a fraction of a pixel; the bands the maps extrapolate over
+    /// near concave edges, where the luminance changes fastest, are narrower).
+    pub fine_edge_margin: usize,
+    /// The unobserved texels of the maps within this many texels of an observed one are
+    /// extrapolated to first order (`extrapolate.rs`) instead of the inpainting's zero order;
+    /// 0: off.
+    pub linear_bands: usize,
     /// A correction rotating a view by more than this (degrees) is rejected.
     pub max_rotation_deg: f64,
     /// A correction moving a camera by more than this fraction of its mean distance to the
@@ -122,6 +131,9 @@ pub struct PoseSettings {
     /// came from (`joint.rs`); the common motion is then not applied separately (the joint
     /// step contains it).
     pub joint: bool,
+    /// An alignment level stops when a step rotates by less than this (radians) and moves the
+    /// camera by less than this × the mean depth ([`AlignSettings::step_tolerance`]).
+    pub step_tolerance: f64,
 }
 
 impl Default for PoseSettings {
@@ -133,6 +145,8 @@ impl Default for PoseSettings {
             sigmas: vec![4.0, 2.0, 1.0],
             max_iterations: 12,
             edge_margin: 3,
+            fine_edge_margin: 1,
+            linear_bands: 8,
             max_rotation_deg: 3.0,
             max_translation: 0.05,
             common_motion: true,
@@ -140,6 +154,7 @@ impl Default for PoseSettings {
             prior_px: None,
             pivot_at_scene: false,
             joint: true,
+            step_tolerance: 2e-6,
         }
     }
 }
@@ -322,6 +337,7 @@ fn edge_free_map(
     a: &Atlas,
     views: &[View],
     pure: &[PureBuffer],
+    linear_bands: usize,
 ) -> (Vec<f32>, Vec<bool>) {
     let (mut l, obs) = luminance_map(scene, shape, a, views, pure);
     let (w, h) = (a.width, a.height);
@@ -365,7 +381,11 @@ fn edge_free_map(
     }
     let domain: Vec<bool> = dist.iter().map(|&d| d != usize::MAX).collect();
     super::inpaint::inpaint(&mut l, &obs, &domain, &chart, w, h, 3);
-    (l.iter().map(|&c| luminance(c)).collect(), domain)
+    let mut lum: Vec<f32> = l.iter().map(|&c| luminance(c)).collect();
+    if linear_bands > 0 {
+        extrapolate::extrapolate_linear(&mut lum, &obs, &dist, &chart, w, h, linear_bands);
+    }
+    (lum, domain)
 }
 
 /// Rotation vector (radians) of a rotation matrix.
@@ -405,6 +425,7 @@ pub fn refine_poses(
         max_iterations: s.max_iterations,
         edge_system: s.common_motion,
         pivot_at_scene: s.pivot_at_scene,
+        step_tolerance: s.step_tolerance,
         ..Default::default()
     };
     let mut steps_px: Vec<Vec<f64>> = vec![Vec::new(); views.len()];
@@ -441,8 +462,13 @@ pub fn refine_poses(
                 v
             })
             .collect();
+        let margin = if round > s.rotation_rounds.min(s.rounds.max(1) - 1) {
+            s.fine_edge_margin
+        } else {
+            s.edge_margin
+        };
         let pure: Vec<PureBuffer> =
-            current.iter().map(|v| erode(&views::pure_buffer(scene, &v.camera), s.edge_margin)).collect();
+            current.iter().map(|v| erode(&views::pure_buffer(scene, &v.camera), margin)).collect();
         let depths: Vec<Vec<f32>> = if s.joint {
             current.iter().map(|v| joint::depth_buffer(scene, &v.camera)).collect()
         } else {
@@ -460,8 +486,10 @@ pub fn refine_poses(
             }
             let ov: Vec<View> = others.iter().map(|&j| current[j].clone()).collect();
             let op: Vec<PureBuffer> = others.iter().map(|&j| pure[j].clone()).collect();
-            let maps: Vec<(Vec<f32>, Vec<bool>)> =
-                objects.par_iter().map(|&(shape, a)| edge_free_map(scene, shape, a, &ov, &op)).collect();
+            let maps: Vec<(Vec<f32>, Vec<bool>)> = objects
+                .par_iter()
+                .map(|&(shape, a)| edge_free_map(scene, shape, a, &ov, &op, s.linear_bands))
+                .collect();
             let eye = current[k].camera.origin();
             let predict = |si: &SurfaceInteraction| -> Option<f32> {
                 // an emitter's front shows its known radiance: an outline no view misplaces
