@@ -406,6 +406,12 @@ fn mitsuba_room_perturbed_poses() {
     if let Ok(v) = std::env::var("OPAL_POSE_LINEAR_BANDS") {
         poses.linear_bands = v.parse().expect("OPAL_POSE_LINEAR_BANDS");
     }
+    if let Ok(v) = std::env::var("OPAL_POSE_DELIGHT_MARGIN") {
+        poses.delight_edge_margin = v.parse().expect("OPAL_POSE_DELIGHT_MARGIN");
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_FINE_SIGMAS") {
+        poses.fine_sigmas = Some(v.split(',').map(|x| x.parse().expect("OPAL_POSE_FINE_SIGMAS")).collect());
+    }
     if let Ok(v) = std::env::var("OPAL_POSE_ROUNDS") {
         poses.rounds = v.parse().expect("OPAL_POSE_ROUNDS");
     }
