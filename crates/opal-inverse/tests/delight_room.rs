@@ -21,10 +21,12 @@
 //!   (`OPAL_REFINE_POSES=off|rotation|full` overrides it; bounds asserted for `full` only),
 //!   judged at the TRUE cameras; prints the pose errors, the mean reprojection error at the
 //!   true cameras before and after and each view's steps per round; `OPAL_POSE_PRIOR_PX=<px>|off`
-//!   and `OPAL_POSE_PIVOT=scene|camera` override the prior and the pivot (`PoseSettings`).
-//!   Measured 2026-11-26 (default settings; fails): seed 0x5EED0025 1.25 %, floor 37.89 dB,
-//!   poster 30.71 dB; 0x5EED0026 1.33 %, 38.33 dB, 30.63 dB (docs/delight.md, "Pose
-//!   refinement", has the runs with the pivot and prior and the time shares).
+//!   and `OPAL_POSE_PIVOT=scene|camera` override the prior and the pivot (`PoseSettings`);
+//!   `OPAL_POSE_JOINT=on|off`, `OPAL_POSE_FINE_MARGIN`, `OPAL_POSE_LINEAR_BANDS`,
+//!   `OPAL_POSE_DELIGHT_MARGIN`, `OPAL_POSE_FINE_SIGMAS=2,1`, `OPAL_POSE_STEP_TOL`,
+//!   `OPAL_POSE_ROUNDS` the other settings; `OPAL_POSE_AMOUNT=<x>` scales the perturbation (0:
+//!   the exact poses, refined all the same). Measured: docs/delight.md, "Pose refinement", and
+//!   docs/decisions/delight-pose-refinement.md.
 //!
 //! `OPAL_VIEW_GAINS=fixed|exposure|exposure+wb` overrides the mode of the two gained tests (e.g.
 //! `fixed` shows what the gained views give without the estimation; bounds are then not

@@ -237,7 +237,7 @@ pub(super) fn joint_step(
         }
     }
     let trace: f64 = (0..n).map(|i| hm[(i, i)]).sum();
-    if !(trace > 0.0) {
+    if trace.is_nan() || trace <= 0.0 {
         return None;
     }
     for i in 0..n {
