@@ -21,10 +21,12 @@
 //!   (`OPAL_REFINE_POSES=off|rotation|full` overrides it; bounds asserted for `full` only),
 //!   judged at the TRUE cameras; prints the pose errors, the mean reprojection error at the
 //!   true cameras before and after and each view's steps per round; `OPAL_POSE_PRIOR_PX=<px>|off`
-//!   and `OPAL_POSE_PIVOT=scene|camera` override the prior and the pivot (`PoseSettings`).
-//!   Measured 2026-11-26 (default settings; fails): seed 0x5EED0025 1.25 %, floor 37.89 dB,
-//!   poster 30.71 dB; 0x5EED0026 1.33 %, 38.33 dB, 30.63 dB (docs/delight.md, "Pose
-//!   refinement", has the runs with the pivot and prior and the time shares).
+//!   and `OPAL_POSE_PIVOT=scene|camera` override the prior and the pivot (`PoseSettings`);
+//!   `OPAL_POSE_JOINT=on|off`, `OPAL_POSE_FINE_MARGIN`, `OPAL_POSE_LINEAR_BANDS`,
+//!   `OPAL_POSE_DELIGHT_MARGIN`, `OPAL_POSE_FINE_SIGMAS=2,1`, `OPAL_POSE_STEP_TOL`,
+//!   `OPAL_POSE_ROUNDS` the other settings; `OPAL_POSE_AMOUNT=<x>` scales the perturbation (0:
+//!   the exact poses, refined all the same). Measured: docs/delight.md, "Pose refinement", and
+//!   docs/decisions/delight-pose-refinement.md.
 //!
 //! `OPAL_VIEW_GAINS=fixed|exposure|exposure+wb` overrides the mode of the two gained tests (e.g.
 //! `fixed` shows what the gained views give without the estimation; bounds are then not
@@ -364,13 +366,15 @@ fn mitsuba_room_perturbed_poses() {
             break v.normalize();
         }
     };
+    // OPAL_POSE_AMOUNT: a multiple of the perturbation (0: the exact poses, refined all the same)
+    let amount: f64 = std::env::var("OPAL_POSE_AMOUNT").map_or(1.0, |v| v.parse().expect("OPAL_POSE_AMOUNT"));
     let mut views = truth.clone();
     for v in &mut views {
         let m = v.camera.to_world.as_dmat4();
-        let deg = 0.15 + 0.15 * rnd();
+        let deg = amount * (0.15 + 0.15 * rnd());
         // one pixel at the scene centre's distance
         let px = 2.0 * v.camera.tan_half_x as f64 / v.camera.width as f64;
-        let t = (m.w_axis.truncate() - centre).length() * px;
+        let t = amount * (m.w_axis.truncate() - centre).length() * px;
         let (axis, dir) = (unit(&mut rnd), unit(&mut rnd));
         v.camera = camera_with(&v.camera, compose(m, axis * deg.to_radians(), dir * t));
         let (r, d) = pose_error(m, v.camera.to_world.as_dmat4());
@@ -389,7 +393,34 @@ fn mitsuba_room_perturbed_poses() {
         Ok(other) => panic!("OPAL_POSE_PIVOT: unknown {other}"),
         Err(_) => {}
     }
-    println!("pose settings: prior {:?} px, pivot at scene {}", poses.prior_px, poses.pivot_at_scene);
+    match std::env::var("OPAL_POSE_JOINT").as_deref() {
+        Ok("on") => poses.joint = true,
+        Ok("off") => poses.joint = false,
+        Ok(other) => panic!("OPAL_POSE_JOINT: unknown {other}"),
+        Err(_) => {}
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_STEP_TOL") {
+        poses.step_tolerance = v.parse().expect("OPAL_POSE_STEP_TOL: radians");
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_FINE_MARGIN") {
+        poses.fine_edge_margin = v.parse().expect("OPAL_POSE_FINE_MARGIN");
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_LINEAR_BANDS") {
+        poses.linear_bands = v.parse().expect("OPAL_POSE_LINEAR_BANDS");
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_DELIGHT_MARGIN") {
+        poses.delight_edge_margin = v.parse().expect("OPAL_POSE_DELIGHT_MARGIN");
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_FINE_SIGMAS") {
+        poses.fine_sigmas = Some(v.split(',').map(|x| x.parse().expect("OPAL_POSE_FINE_SIGMAS")).collect());
+    }
+    if let Ok(v) = std::env::var("OPAL_POSE_ROUNDS") {
+        poses.rounds = v.parse().expect("OPAL_POSE_ROUNDS");
+    }
+    println!(
+        "pose settings: prior {:?} px, pivot at scene {}, joint {}",
+        poses.prior_px, poses.pivot_at_scene, poses.joint
+    );
     let s = DelightSettings { poses, ..settings(ViewGainMode::Fixed) };
     let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
     if let Some(p) = &r.poses {

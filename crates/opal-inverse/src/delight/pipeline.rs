@@ -75,7 +75,16 @@ pub fn delight(
     }
     // 4. luminance maps (on the views divided by their gains), then the initial albedo
     let t0 = StageClock::start();
-    let pure: Vec<PureBuffer> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
+    // after a pose refinement, the pixels next to an edge are left out (the poses are known to a
+    // fraction of a pixel)
+    let margin = if poses.is_some() { s.poses.delight_edge_margin } else { 0 };
+    let pure: Vec<PureBuffer> = views
+        .iter()
+        .map(|v| {
+            let p = views::pure_buffer(&scene, &v.camera);
+            if margin > 0 { pose::erode_smooth(&p, margin) } else { p }
+        })
+        .collect();
     let (corrected, view_gains) =
         luminance::view_gains(&inp, &objects, views, &pure, &mut warnings, &mut timings);
     let views: &[View] = corrected.as_deref().unwrap_or(views);
