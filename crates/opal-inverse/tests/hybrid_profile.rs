@@ -23,11 +23,21 @@ fn hybrid_forced_on_dotted_plate() {
         fit(&problem, &FitOptions { family: Some(Family::Hybrid), shift: false, hybrid_nodes: 4 }).unwrap();
     for (i, c) in r.candidates.iter().enumerate() {
         eprintln!(
-            "[{i}] {} | {} simulations, converged {} | check rms/noise {:.3}",
+            "[{i}] {} | {} simulations, converged {} | objective {:.4e} | check rms/noise {:.3}, χ² {:.1} over {} points",
             c.fit.model.describe(),
             c.fit.evaluations,
             c.fit.converged,
-            c.check.rms / c.check.noise
+            c.fit.objective,
+            c.check.rms / c.check.noise,
+            c.check.chi2,
+            c.check.points
+        );
+    }
+    for d in &r.decisions {
+        let c = &d.comparison;
+        eprintln!(
+            "[{}] vs [{}]: ΔX {:.1}, sd {:.1}, threshold {:.1}, objectives at the check seed {:?}, accepted {}",
+            d.simple, d.rich, c.delta_chi2, c.sd, c.threshold, c.objectives, c.accepted
         );
     }
     let (coarse, full) = problem.evaluations_by_stage();

@@ -7,9 +7,7 @@
 //!
 //! Tests: `crates/opal-inverse/tests/ndf_fit.rs`; `crates/opal-cli/tests/fit_ndf.rs`.
 
-use super::{
-    Comparison, Evaluation, Family, FamilyFit, Model, Problem, check_seed, hybrid_spacing, with_node,
-};
+use super::{Comparison, Evaluation, Family, FamilyFit, Model, Problem, check_seed, hybrid_spacing};
 use opal::bsdf::microfacet::Ndfs;
 
 /// `auto` fits the dotted model when the kept single-NDF model's check rms exceeds this many
@@ -161,12 +159,13 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
             let pm = &cands[best].fit.model;
             let taken: Vec<f64> = pm.free_nodes().iter().map(|&i| pm.nodes[i].0).collect();
             let Some(theta) = problem.residual_peak(&cands[best].check, h, &taken) else { break };
-            let m = with_node(pm, theta, h);
-            let fit = problem.fit_hybrid(&m)?;
+            // incremental: only the new node is fitted, from the kept model's parameters
+            let fit = problem.fit_hybrid_step(pm, theta, h)?;
             let check = problem.check_fit(&fit)?;
             cands.push(Candidate { fit, check });
             let hi = cands.len() - 1;
-            let comparison = problem.compare(&cands[best].check, &cands[hi].check, 1);
+            // ΔX above the threshold and a lower fit objective at the check seed
+            let comparison = problem.compare_step(&cands[best].check, &cands[hi].check, 1);
             let accepted = comparison.accepted;
             decisions.push(Decision { simple: best, rich: hi, comparison });
             if !accepted {

@@ -74,7 +74,7 @@ pub use model::{DOTTED_COVERAGE_START, Family, Model, STUDENT_GAMMA_START, hybri
 pub use nodes::with_node;
 pub use optimise::{FamilyFit, fit_families};
 pub use scale::{ScaleFit, ScaleGroup, ScaleMode, ScaleSetup};
-pub use selection::{Comparison, Z99, chi2_q99};
+pub use selection::{Comparison, Z99, chi2_q99, step_accepted};
 
 use crate::measured::Measured;
 use opal::bsdf::microfacet::Ndfs;

@@ -44,8 +44,24 @@ pub struct Comparison {
     pub extra_params: usize,
     /// Threshold: c · χ²₀.₉₉(k) + z₀.₉₉ · sd.
     pub threshold: f64,
-    /// Whether B is preferred (ΔX > threshold).
+    /// Whether B is preferred: ΔX > threshold, and for a hybrid node step
+    /// ([`Problem::compare_step`]) also a lower fit objective and no larger RMS relative
+    /// residual at the check seed ([`step_accepted`]).
     pub accepted: bool,
+    /// The fit objective (the Pearson form the optimiser minimises) of A and of B at the
+    /// check seed, when the comparison is a hybrid node step ([`Problem::compare_step`]).
+    pub objectives: Option<(f64, f64)>,
+}
+
+/// The acceptance of a hybrid node step: ΔX above the threshold **and**, at the check seed,
+/// a lower fit objective (the Pearson form the optimiser minimises; `objective` = (A, B)) and
+/// no larger RMS relative residual (the reported quality; `rms` = (A, B)). ΔX weights every
+/// point by its noise: when no model fits the data within noise (the dotted plate: spike and
+/// lobe, χ² ≈ 10⁷ over 643 points) it is ruled by the few most precise points, and a node that
+/// fits the spike better clears it while the fit as a whole gets worse (check rms/noise
+/// 2.97 → 3.73 → 3.91 over two accepted nodes); such a step is not kept.
+pub fn step_accepted(comparison: &Comparison, objective: (f64, f64), rms: (f64, f64)) -> bool {
+    comparison.delta_chi2 > comparison.threshold && objective.1 < objective.0 && rms.1 <= rms.0
 }
 
 impl Problem {
@@ -104,6 +120,26 @@ impl Problem {
         let inflation = if var_indep > 0.0 { (var / var_indep).max(1.0) } else { 1.0 };
         let sd = var.max(0.0).sqrt();
         let threshold = inflation * chi2_q99(extra_params) + Z99 * sd;
-        Comparison { delta_chi2: total, sd, inflation, extra_params, threshold, accepted: total > threshold }
+        Comparison {
+            delta_chi2: total,
+            sd,
+            inflation,
+            extra_params,
+            threshold,
+            accepted: total > threshold,
+            objectives: None,
+        }
+    }
+
+    /// The selection rule for a hybrid node step ([`Problem::compare`] plus
+    /// [`step_accepted`]): B is kept only when it also lowers the fit objective at the check
+    /// seed and does not raise its RMS relative residual (both evaluations from
+    /// [`Problem::check_fit`]).
+    pub fn compare_step(&self, simple: &Evaluation, rich: &Evaluation, extra_params: usize) -> Comparison {
+        let mut c = self.compare(simple, rich, extra_params);
+        let (oa, ob) = (self.objective_of(&simple.result).0, self.objective_of(&rich.result).0);
+        c.accepted = step_accepted(&c, (oa, ob), (simple.rms, rich.rms));
+        c.objectives = Some((oa, ob));
+        c
     }
 }
