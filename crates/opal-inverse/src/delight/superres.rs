@@ -398,6 +398,18 @@ fn diag_residual(
     }
 }
 
+/// The shading with the gutter texels (no triangle, so no irradiance estimate: 0) filled from
+/// their owner chart's texels ([`super::inpaint::dilate`], as the albedo's gutters are filled).
+/// The bilinear taps of a sub-pixel ray near a chart border read gutter texels; with a shading
+/// of (almost) 0 there the model would predict no radiance from them and the solve would bias the
+/// border texels to make up for it.
+fn shading_into_gutters(sd: &[f32], a: &Atlas) -> Vec<f32> {
+    let mut v: Vec<[f32; 3]> = sd.iter().map(|&x| [x; 3]).collect();
+    let filled: Vec<bool> = a.texel_tri.iter().map(|&t| t != NO_TRI).collect();
+    super::inpaint::dilate(&mut v, &filled, &a.texel_owner, a.width, a.height, 2);
+    v.iter().map(|x| x[0]).collect()
+}
+
 /// Super-resolved radiance map of one object from every view: values per texel (RGB radiance)
 /// and the observed mask. `(init, init_obs)` is the back-projected map and its mask (warm start;
 /// texels no pure pixel covers keep it). `shading` (per texel, any positive scale: the
@@ -455,6 +467,7 @@ pub fn superres_luminance(
     // edge prior acts on the albedo, not on the lighting's gradients and shadows
     let mut sh = vec![1f32; m];
     if let Some(sd) = shading {
+        let sd = shading_into_gutters(sd, a);
         let mean = texel_of.iter().map(|&t| sd[t].max(0.0) as f64).sum::<f64>() / m.max(1) as f64;
         if mean > 0.0 {
             for (j, &t) in texel_of.iter().enumerate() {
