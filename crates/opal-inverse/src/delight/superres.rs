@@ -485,16 +485,19 @@ pub fn superres_luminance(
         let inv: Vec<f64> = rows
             .iter()
             .map(|r| {
-                let pred: f64 = r
-                    .entries
-                    .iter()
-                    .map(|&(c, v)| v as f64 * super::luminance(init[c as usize]) as f64)
-                    .sum::<f64>();
-                let y = if init_obs.get(r.entries[0].0 as usize).copied().unwrap_or(false) && pred > 0.0 {
-                    pred
-                } else {
-                    super::luminance(r.y) as f64
-                };
+                // over the taps on observed texels, renormalised: gutter and unseen texels hold no
+                // back-projected value (0), which would make σ_p too small and the row's weight
+                // too large
+                let (mut pred, mut wsum, mut wall) = (0f64, 0f64, 0f64);
+                for &(c, v) in &r.entries {
+                    wall += v as f64;
+                    if init_obs.get(c as usize).copied().unwrap_or(false) {
+                        pred += v as f64 * super::luminance(init[c as usize]) as f64;
+                        wsum += v as f64;
+                    }
+                }
+                let y =
+                    if wsum >= 0.5 * wall && pred > 0.0 { pred / wsum } else { super::luminance(r.y) as f64 };
                 1.0 / y.max(1e-3 * mean)
             })
             .collect();
