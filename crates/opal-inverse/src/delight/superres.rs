@@ -398,6 +398,18 @@ fn diag_residual(
     }
 }
 
+/// The shading with the gutter texels (no triangle, so no irradiance estimate: 0) filled from
+/// their owner chart's texels ([`super::inpaint::dilate`], as the albedo's gutters are filled).
+/// The bilinear taps of a sub-pixel ray near a chart border read gutter texels; with a shading
+/// of (almost) 0 there the model would predict no radiance from them and the solve would bias the
+/// border texels to make up for it.
+fn shading_into_gutters(sd: &[f32], a: &Atlas) -> Vec<f32> {
+    let mut v: Vec<[f32; 3]> = sd.iter().map(|&x| [x; 3]).collect();
+    let filled: Vec<bool> = a.texel_tri.iter().map(|&t| t != NO_TRI).collect();
+    super::inpaint::dilate(&mut v, &filled, &a.texel_owner, a.width, a.height, 2);
+    v.iter().map(|x| x[0]).collect()
+}
+
 /// Super-resolved radiance map of one object from every view: values per texel (RGB radiance)
 /// and the observed mask. `(init, init_obs)` is the back-projected map and its mask (warm start;
 /// texels no pure pixel covers keep it). `shading` (per texel, any positive scale: the
@@ -455,6 +467,7 @@ pub fn superres_luminance(
     // edge prior acts on the albedo, not on the lighting's gradients and shadows
     let mut sh = vec![1f32; m];
     if let Some(sd) = shading {
+        let sd = shading_into_gutters(sd, a);
         let mean = texel_of.iter().map(|&t| sd[t].max(0.0) as f64).sum::<f64>() / m.max(1) as f64;
         if mean > 0.0 {
             for (j, &t) in texel_of.iter().enumerate() {
@@ -472,16 +485,19 @@ pub fn superres_luminance(
         let inv: Vec<f64> = rows
             .iter()
             .map(|r| {
-                let pred: f64 = r
-                    .entries
-                    .iter()
-                    .map(|&(c, v)| v as f64 * super::luminance(init[c as usize]) as f64)
-                    .sum::<f64>();
-                let y = if init_obs.get(r.entries[0].0 as usize).copied().unwrap_or(false) && pred > 0.0 {
-                    pred
-                } else {
-                    super::luminance(r.y) as f64
-                };
+                // over the taps on observed texels, renormalised: gutter and unseen texels hold no
+                // back-projected value (0), which would make σ_p too small and the row's weight
+                // too large
+                let (mut pred, mut wsum, mut wall) = (0f64, 0f64, 0f64);
+                for &(c, v) in &r.entries {
+                    wall += v as f64;
+                    if init_obs.get(c as usize).copied().unwrap_or(false) {
+                        pred += v as f64 * super::luminance(init[c as usize]) as f64;
+                        wsum += v as f64;
+                    }
+                }
+                let y =
+                    if wsum >= 0.5 * wall && pred > 0.0 { pred / wsum } else { super::luminance(r.y) as f64 };
                 1.0 / y.max(1e-3 * mean)
             })
             .collect();
