@@ -444,6 +444,7 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "rms": ev.rms,
         "noise": ev.noise,
         "rms_over_noise": ev.rms / ev.noise,
+        "scale_check": ev.scale_check.map(|c| serde_json::json!({"k": c.k, "stderr": c.stderr, "mismatch": c.mismatch})),
         "rms_initial": init.rms,
         "rms_per_incidence": per,
         "chi2": ev.chi2,
@@ -680,6 +681,14 @@ pub fn run(a: FitNdfArgs) -> Result<i32> {
             o.json["evaluations"],
             o.json["seconds"].as_f64().unwrap_or(0.0),
             a.output.display()
+        );
+    }
+    let sc = &o.json["scale_check"];
+    if sc["mismatch"].as_bool() == Some(true) {
+        eprintln!(
+            "fit-ndf: warning: measured ≈ {:.4} ± {:.4} × simulated: the absolute values' calibration does not match (try --scale global)",
+            sc["k"].as_f64().unwrap_or(f64::NAN),
+            sc["stderr"].as_f64().unwrap_or(f64::NAN)
         );
     }
     if let Some(fs) = o.json["scale"]["factors"].as_array().filter(|f| !f.is_empty()) {

@@ -231,6 +231,44 @@ pub struct Evaluation {
     pub points: usize,
     /// The simulation.
     pub result: GonioResult,
+    /// Absolute values only (`None` with calibration factors): the global factor between
+    /// measured and simulated values ([`ScaleCheck`]), a check of the calibration.
+    pub scale_check: Option<ScaleCheck>,
+}
+
+/// One global factor `k` with `m ≈ k s` over the used points, fitted after an absolute fit
+/// by weighted least squares (weights `1/(σm² + σs²)`):
+/// `k = Σ w m s / Σ w s²`, `σk = (Σ w s²)^(−1/2)`. A calibration error shows as `k ≠ 1`
+/// even when the NDF absorbed part of it and the residuals stay near the noise.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScaleCheck {
+    /// The factor (measured ≈ k × simulated).
+    pub k: f64,
+    /// Its standard error.
+    pub stderr: f64,
+    /// `|k − 1| > 3 σk` and `|k − 1| > 2 %`: the measurement's scale does not match.
+    pub mismatch: bool,
+}
+
+impl ScaleCheck {
+    /// The check from (measured, its standard error, simulated, its standard error) points.
+    pub fn from_points(points: impl IntoIterator<Item = (f64, f64, f64, f64)>) -> Option<ScaleCheck> {
+        let (mut ms, mut ss) = (0.0, 0.0);
+        for (m, sm, s, sds) in points {
+            let v = sm * sm + sds * sds;
+            if v > 0.0 && v.is_finite() {
+                ms += m * s / v;
+                ss += s * s / v;
+            }
+        }
+        if !(ss > 0.0) {
+            return None;
+        }
+        let k = ms / ss;
+        let stderr = ss.sqrt().recip();
+        let d = (k - 1.0).abs();
+        Some(ScaleCheck { k, stderr, mismatch: d > 3.0 * stderr && d > 0.02 })
+    }
 }
 
 /// Index of the hemisphere detector at polar `theta`, azimuth `phi` (radians) on `side`.
@@ -549,6 +587,14 @@ impl Problem {
                 (self.incidences[i].to_degrees(), (e / cf).sqrt(), (n / cf).sqrt(), c)
             })
             .collect();
+        let scale_check = if self.setup.scale.mode == ScaleMode::Absolute {
+            ScaleCheck::from_points(self.points.iter().map(|p| {
+                let r = &res.incidences[p.inc];
+                (p.m, p.sm, r.value[p.det], r.value_stderr[p.det])
+            }))
+        } else {
+            None
+        };
         Evaluation {
             rms: (se / np).sqrt(),
             noise: (sn / np).sqrt(),
@@ -556,6 +602,7 @@ impl Problem {
             per_incidence,
             points: self.points.len(),
             result: res,
+            scale_check,
         }
     }
 

@@ -323,3 +323,23 @@ fn node_step_that_worsens_the_objective_is_rejected() {
     let rms_ok = a.rms <= b.rms;
     assert!(ob < oa && c.accepted == (c.delta_chi2 > c.threshold && rms_ok), "{c:?}");
 }
+
+/// The absolute-mode calibration check flags data scaled ×0.8 and passes unscaled data
+/// (synthetic points with 5 % measurement and 3 % simulation noise, deterministic jitter).
+#[test]
+fn scale_check_flags_scaled_data() {
+    let pts = |f: f64| {
+        (0..40).map(move |i| {
+            let s = 1.0 + 0.1 * i as f64;
+            let jitter = 0.02 * ((i * 7 % 5) as f64 - 2.0) / 2.0;
+            let m = f * s * (1.0 + jitter);
+            (m, 0.05 * m, s, 0.03 * s)
+        })
+    };
+    let ok = super::ScaleCheck::from_points(pts(1.0)).unwrap();
+    assert!(!ok.mismatch, "{ok:?}");
+    assert!((ok.k - 1.0).abs() < 3.0 * ok.stderr, "{ok:?}");
+    let bad = super::ScaleCheck::from_points(pts(0.8)).unwrap();
+    assert!(bad.mismatch, "{bad:?}");
+    assert!((bad.k - 0.8).abs() < 3.0 * bad.stderr, "{bad:?}");
+}
