@@ -1,5 +1,5 @@
 //! Stage 1 of [`delight`](crate::delight::delight): the objects to recover
-//! ([`select_objects`]: the named shapes or every non-emitting one) and their atlases
+//! ([`select_objects`]: the named shapes or every non-emitting diffuse one; non-diffuse shapes keep their material) and their atlases
 //! ([`unwrap_objects`]: own UVs when usable, else new charts; the resolution is the setting, else
 //! the size of the object's square bitmap texture when its UVs are kept, else from the cameras'
 //! pixel footprints, [`footprint`]). An object whose unwrap fails is skipped with a warning.
@@ -13,6 +13,7 @@ use opal::camera::Camera;
 use opal::error::{Error, Result};
 use opal::scene::Scene;
 use opal::scene::desc::{BsdfDesc, TextureDesc};
+use opal::scene::material::Material;
 
 /// Size of the bitmap reflectance of a diffuse (or two-sided diffuse) BSDF, if any.
 fn existing_texture_size(b: &BsdfDesc) -> Option<(usize, usize)> {
@@ -23,8 +24,14 @@ fn existing_texture_size(b: &BsdfDesc) -> Option<(usize, usize)> {
     }
 }
 
-/// Shape indices to recover: the shapes named in `objects` (errors for unknown ids and
-/// emitters), or every non-emitting shape.
+/// Whether a shape's material is (one- or two-sided) diffuse, i.e. recoverable as an albedo.
+fn is_diffuse(m: &Material) -> bool {
+    matches!(m, Material::Diffuse { .. })
+}
+
+/// Shape indices to recover: the shapes named in `objects` (errors for unknown ids, emitters and
+/// non-diffuse shapes), or every non-emitting diffuse shape. Non-diffuse shapes keep their
+/// material and take part in the light transport.
 pub(in crate::delight) fn select_objects(scene: &Scene, objects: Option<&[String]>) -> Result<Vec<usize>> {
     let selected: Vec<usize> = match objects {
         Some(names) => {
@@ -43,14 +50,22 @@ pub(in crate::delight) fn select_objects(scene: &Scene, objects: Option<&[String
                         "is an emitter; only non-emitting shapes can be recovered",
                     ));
                 }
+                if !is_diffuse(&scene.shapes[k].material) {
+                    return Err(Error::invalid(
+                        format!("selected object {n}"),
+                        "is not diffuse; only diffuse shapes can be recovered (non-diffuse shapes keep their material)",
+                    ));
+                }
                 v.push(k);
             }
             v
         }
-        None => (0..scene.shapes.len()).filter(|&k| scene.shapes[k].emission.is_none()).collect(),
+        None => (0..scene.shapes.len())
+            .filter(|&k| scene.shapes[k].emission.is_none() && is_diffuse(&scene.shapes[k].material))
+            .collect(),
     };
     if selected.is_empty() {
-        return Err(Error::invalid("scene", "no non-emitting shape to recover"));
+        return Err(Error::invalid("scene", "no non-emitting diffuse shape to recover"));
     }
     Ok(selected)
 }
@@ -130,4 +145,50 @@ pub(in crate::delight) fn unwrap_objects(
         }
     }
     (objects, skipped)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use opal::bsdf::{Bxdfs, Phong};
+    use opal::geometry::TriangleMesh;
+    use opal::math::Vec3;
+    use opal::scene::desc::{SceneDesc, ShapeDesc};
+    use opal::spectrum::Spectrum;
+
+    fn quad(id: &str, z: f32, bsdf: BsdfDesc) -> ShapeDesc {
+        let v = Vec3::new;
+        ShapeDesc {
+            id: id.into(),
+            mesh: TriangleMesh {
+                positions: vec![v(0., 0., z), v(1., 0., z), v(1., 1., z), v(0., 1., z)],
+                normals: vec![],
+                uvs: vec![],
+                indices: vec![[0, 1, 2], [0, 2, 3]],
+            },
+            bsdf,
+            emitter: None,
+            origin: None,
+        }
+    }
+
+    /// Default selection: diffuse (and two-sided diffuse) shapes only; a non-diffuse shape keeps
+    /// its material; naming it explicitly is an error.
+    #[test]
+    fn default_selection_skips_non_diffuse() {
+        let diffuse = || BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(Spectrum::splat(0.5)) };
+        let desc = SceneDesc {
+            shapes: vec![
+                quad("wall", 0., diffuse()),
+                quad("metal", 1., BsdfDesc::Lobe(Bxdfs::Phong(Phong::new(20.0, 1.0, Spectrum::splat(0.8))))),
+                quad("back", 2., BsdfDesc::TwoSided(Box::new(diffuse()))),
+            ],
+            ..Default::default()
+        };
+        let scene = Scene::build(&desc).unwrap();
+        assert_eq!(select_objects(&scene, None).unwrap(), vec![0, 2]);
+        assert_eq!(select_objects(&scene, Some(&["back".to_string()])).unwrap(), vec![2]);
+        let err = select_objects(&scene, Some(&["metal".to_string()])).unwrap_err().to_string();
+        assert!(err.contains("not diffuse"), "{err}");
+    }
 }
