@@ -261,7 +261,8 @@ impl ScaleCheck {
                 ss += s * s / v;
             }
         }
-        if !(ss > 0.0) {
+        // none usable (also a NaN sum)
+        if ss.is_nan() || ss <= 0.0 {
             return None;
         }
         let k = ms / ss;
