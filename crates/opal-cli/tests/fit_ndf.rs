@@ -87,6 +87,7 @@ fn small_fit_writes_outputs() {
         "rms_per_incidence",
         "chi2",
         "scale",
+        "scale_check",
         "noise_model",
         "objective",
         "points",
