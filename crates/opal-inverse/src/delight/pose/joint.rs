@@ -105,24 +105,7 @@ pub(super) fn view_rows(
         .into_par_iter()
         .filter_map(|i| {
             let (p, xw) = (pb[i], pr.hits[i]?);
-            if !p.is_finite() || sup[i] < 0.99 {
-                return None;
-            }
-            let (x, y) = ((i % w) as i64, (i / w) as i64);
-            let yv = lv.at(x, y);
-            if !yv.is_finite() {
-                return None;
-            }
-            let (gx, gy) = lv.grad(x, y)?;
-            let q = to_cam.transform_point3(xw);
-            if q.z <= 0.0 {
-                return None;
-            }
-            let jp = projection_jacobian(q, tx, ty, w as f64, h as f64);
-            let mut own = [0.0; 6];
-            for c in 0..6 {
-                own[c] = gx * jp[0][c] + gy * jp[1][c];
-            }
+            let (yv, own, _) = lv.pixel_row(i, p, sup[i], xw, &to_cam, (tx, ty))?;
             let shape = pr.keys[i].map(|(sh, _)| sh);
             let mut cross = Vec::new();
             if !pr.mixed[i] {

@@ -249,6 +249,37 @@ pub(super) struct Level {
 }
 
 impl Level {
+    /// Pixel `i`'s observed value, its derivatives with respect to the six pose parameters
+    /// through the projection of the world point `xw`, and `xw` in camera space (`to_cam`,
+    /// tangents `tan`) — `None` where the pixel cannot enter a step: a prediction `p` that is not
+    /// finite or supported (`support < 0.99`), an unobserved pixel, no gradient, or a point
+    /// behind the camera. Shared by the per-view ([`linearise`]) and the joint linearisation.
+    pub(super) fn pixel_row(
+        &self,
+        i: usize,
+        p: f32,
+        support: f32,
+        xw: DVec3,
+        to_cam: &DMat4,
+        tan: (f64, f64),
+    ) -> Option<(f32, [f64; 6], DVec3)> {
+        if !p.is_finite() || support < 0.99 {
+            return None;
+        }
+        let (x, y) = ((i % self.w) as i64, (i / self.w) as i64);
+        let yv = self.at(x, y);
+        if !yv.is_finite() {
+            return None;
+        }
+        let (gx, gy) = self.grad(x, y)?;
+        let q = to_cam.transform_point3(xw);
+        if q.z <= 0.0 {
+            return None;
+        }
+        let jp = projection_jacobian(q, tan.0, tan.1, self.w as f64, self.h as f64);
+        Some((yv, std::array::from_fn(|c| gx * jp[0][c] + gy * jp[1][c]), q))
+    }
+
     pub(super) fn at(&self, x: i64, y: i64) -> f32 {
         if x < 0 || y < 0 || x >= self.w as i64 || y >= self.h as i64 {
             return f32::NAN;
@@ -286,25 +317,10 @@ fn linearise(
     let rows: Vec<(f64, [f64; 7], f64)> = (0..w * h)
         .into_par_iter()
         .filter_map(|i| {
-            let (p, m, xw) = (pred[i], support[i], hits[i]?);
-            if !p.is_finite() || m < 0.99 {
-                return None;
-            }
-            let (x, y) = ((i % w) as i64, (i / w) as i64);
-            let yv = lv.at(x, y);
-            if !yv.is_finite() {
-                return None;
-            }
-            let (gx, gy) = lv.grad(x, y)?;
-            let q = to_cam.transform_point3(xw);
-            if q.z <= 0.0 {
-                return None;
-            }
-            let jp = projection_jacobian(q, tx, ty, w as f64, h as f64);
+            let p = pred[i];
+            let (yv, own, q) = lv.pixel_row(i, p, support[i], hits[i]?, &to_cam, (tx, ty))?;
             let mut row = [0.0; 7];
-            for c in 0..6 {
-                row[c] = gx * jp[0][c] + gy * jp[1][c];
-            }
+            row[..6].copy_from_slice(&own);
             row[6] = -(p as f64);
             Some((yv as f64 - scale * p as f64, row, q.z))
         })
