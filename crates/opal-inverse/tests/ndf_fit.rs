@@ -1,7 +1,8 @@
 //! Fit of the NDF on the Mitsuba 3 reference curves and round trips on synthetic data
 //! (Student-t tail, shifted peak, multiple scattering, hybrid).
 
-use opal::bsdf::microfacet::{Ndfs, Profile};
+use opal::bsdf::microfacet::{Ndf, Ndfs, Profile};
+use opal::math::Vec3;
 use opal::gonio::{DetectorGrid, DetectorLayout, Face, Gonio, GonioSetup, Plate, Scattering, Side};
 use opal_inverse::measured::Measured;
 use opal_inverse::ndf_fit::{Family, FitOptions, FitReport, FitSetup, Problem, ScaleMode, ScaleSetup, fit};
@@ -45,8 +46,12 @@ fn show(name: &str, problem: &Problem, r: &FitReport, t0: std::time::Instant) {
         );
     }
     let (ec, ef) = problem.evaluations_by_stage();
+    // the absolute mode's calibration check of the kept model (k ≈ 1 on calibrated data)
+    let sc = r.best().check.scale_check.map_or("none".to_string(), |c| {
+        format!("k {:.4} ± {:.4}{}", c.k, c.stderr, if c.mismatch { " MISMATCH" } else { "" })
+    });
     eprintln!(
-        "{name}: kept [{}] {} | {} coarse + {} full simulations, {:.1} s",
+        "{name}: kept [{}] {} | {} coarse + {} full simulations, {:.1} s | scale check {sc}",
         r.best,
         r.best().fit.model.describe(),
         ec,
@@ -279,6 +284,19 @@ fn round_trip_hybrid() {
         let cmp = problem.compare(&c.check, &best.check, extra);
         assert!(cmp.accepted, "hybrid does not beat {}: {cmp:?}", c.fit.model.describe());
     }
+    // the fitted D against the true D (both normalised) at a few θm: the multiplier at 0 is
+    // relative to the fitted α's analytic part, so it equals the true 3 only when α is the
+    // true 0.3; the D values compare the shapes whatever α the fit settled on
+    let (truth, fitted) = (ggx_with_peak(), best.fit.model.ndf().unwrap());
+    let ratios: Vec<String> = [0.0f64, 2.0, 4.0, 6.0, 8.0, 10.0, 15.0, 20.0, 30.0, 45.0]
+        .iter()
+        .map(|&deg| {
+            let t = deg.to_radians();
+            let wm = Vec3::new(t.sin() as f32, 0.0, t.cos() as f32);
+            format!("{deg}°: {:.3}", fitted.d(wm) / truth.d(wm))
+        })
+        .collect();
+    eprintln!("hybrid: fitted D / true D at {}", ratios.join(", "));
     // the peak: the fitted D at 0 is well above the GGX part's (true ratio 3); the first node
     // goes where the residual is largest, which here is the peak
     assert!(best.fit.model.multiplier_at(0.0) > 1.5, "{}", best.fit.model.describe());
@@ -655,23 +673,44 @@ fn scaled_round_trips() {
         },
     ];
     let lines: Vec<String> = cases.iter().map(scaled_case).collect();
-    // the issue's example as absolute values: α off, rms/noise far above 1
+    for l in lines {
+        eprintln!("{l}");
+    }
+}
+
+// Issue 24's example (GGX α 0.25, n 1.52, 3 mm, smooth entry, every value × 0.8) fitted as
+// absolute values, as a user who does not know the calibration is off would: the fit must say
+// so. rms/noise alone no longer does since the lobe points below the 1 % floor count
+// (`min_snr` 3, issue 18): the NDF absorbs most of the 20 % into a wider lobe (α ≈ +12 %) and
+// rms/noise is ≈ 1.2. The absolute mode's calibration check (`Evaluation::scale_check`: the one
+// global factor k that best maps the check simulation onto the measurement) must flag it, with
+// k below 1 (the measurement is low). Was the last part of `scaled_round_trips` (as
+// "rms/noise > 1.5"); a test of its own so it can be run alone (one 1 000 000-photon fit). Run:
+// cargo test --release -p opal-inverse --test ndf_fit -- --ignored --nocapture --exact scaled_data_fitted_as_absolute_is_flagged
+#[test]
+#[ignore]
+fn scaled_data_fitted_as_absolute_is_flagged() {
+    let t0 = std::time::Instant::now();
     let plate = (1.52, 3.0);
     let m = synthetic_scaled(Ndfs::ggx(0.25), false, plate, SCALED_PHOTONS.0, 1101, &[0.8; 4]);
     let p = Problem::new(m, scaled_setup(false, plate, SCALED_PHOTONS.1, ScaleMode::Absolute)).unwrap();
     let r = fit(&p, &FitOptions::default()).unwrap();
+    show("ggx0.25 smooth ×0.8 as absolute", &p, &r, t0);
     let b = r.best();
-    for l in lines {
-        eprintln!("{l}");
-    }
+    let sc = b.check.scale_check.expect("absolute fits carry the calibration check");
     eprintln!(
-        "ggx0.25 smooth ×0.8 as absolute: {} α {:.4} ({:+.2} %) rms/noise {:.3}",
+        "ggx0.25 smooth ×0.8 as absolute: RESULT {} α {:.4} ({:+.2} %) rms/noise {:.3} scale check k {:.4} ± {:.4} \
+         mismatch {} ({:.0} s)",
         b.fit.model.family.name(),
         b.fit.model.alpha,
         100.0 * (b.fit.model.alpha / 0.25 - 1.0),
-        b.check.rms / b.check.noise
+        b.check.rms / b.check.noise,
+        sc.k,
+        sc.stderr,
+        sc.mismatch,
+        t0.elapsed().as_secs_f64()
     );
-    assert!(b.check.rms > 1.5 * b.check.noise, "absolute fit of scaled data within noise?");
+    assert!(sc.mismatch && sc.k < 0.98, "a 20 % calibration error not flagged: {sc:?}");
 }
 
 /// `Problem::new` refuses a floor outside [0, 1) naming `floor_rel` (the CLI checks `--floor`

@@ -272,8 +272,9 @@ impl Problem {
         Ok(best.expect("grid not empty").1)
     }
 
-    /// Refits a hybrid model: α and every free node multiplier (the shape parameters γ, δ of
-    /// the analytic part stay as fitted before the nodes were added).
+    /// Refits a hybrid model: α and every free node multiplier together, from `start` (the
+    /// final step of a hybrid fit, after the incremental node steps; the shape parameters γ,
+    /// δ of the analytic part stay as fitted before the nodes were added).
     pub fn fit_hybrid(&self, start: &Model) -> opal::Result<FamilyFit> {
         let mut coords = vec![Coord::LnAlpha];
         for k in start.free_nodes() {
