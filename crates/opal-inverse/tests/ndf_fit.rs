@@ -2,8 +2,8 @@
 //! (Student-t tail, shifted peak, multiple scattering, hybrid).
 
 use opal::bsdf::microfacet::{Ndf, Ndfs, Profile};
-use opal::math::Vec3;
 use opal::gonio::{DetectorGrid, DetectorLayout, Face, Gonio, GonioSetup, Plate, Scattering, Side};
+use opal::math::Vec3;
 use opal_inverse::measured::Measured;
 use opal_inverse::ndf_fit::{Family, FitOptions, FitReport, FitSetup, Problem, ScaleMode, ScaleSetup, fit};
 use std::path::Path;
