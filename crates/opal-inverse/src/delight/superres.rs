@@ -35,7 +35,8 @@
 //! rays all hit the object (and that it *covers* in [`super::views::PureBuffer::covered`]: pure
 //! pixels plus those across gentle creases, which the per-ray model represents) are used, so
 //! occlusion and anti-aliased edges next to bright emitters never enter; prior edges never cross
-//! a chart seam. A texel counts as observed when the pixels covering it give it a total weight ≥
+//! a chart seam. Bilinear taps on gutter texels are tied to the chart texels the output albedo's
+//! gutters are dilated from (`tie_gutters`), so the model renders what the output texture will. A texel counts as observed when the pixels covering it give it a total weight ≥
 //! [`SrSettings::min_weight`].
 //!
 //! Error analysis hooks ([`SrDiagnostics`], for `bench/scripts/delight_psnr_budget.py`; all off
@@ -83,7 +84,10 @@ pub struct SrSettings {
     /// norm `sqrt(rᵀM⁻¹r)` of every channel has fallen by this factor from its start (0 = always
     /// run `cg_iters`).
     pub cg_tolerance: f32,
-    /// Minimum total pixel weight for a texel to count as observed.
+    /// Minimum total pixel weight for a texel to count as observed (default 1/16: one of the
+    /// 4 × 4 sub-pixel rays' worth; a texel seen at a grazing angle takes a small share of each
+    /// pixel whose footprint covers many texels, and the solve's value there, fitted to those
+    /// pixels' averages, beats inpainting it).
     pub min_weight: f32,
     /// Error-analysis hooks (all off by default; no effect on the results unless `synth` is set).
     pub diagnostics: SrDiagnostics,
@@ -119,7 +123,7 @@ impl Default for SrSettings {
             irls: 6,
             cg_iters: 60,
             cg_tolerance: 0.0,
-            min_weight: 0.25,
+            min_weight: 0.0625,
             diagnostics: SrDiagnostics::default(),
         }
     }
@@ -410,6 +414,48 @@ fn shading_into_gutters(sd: &[f32], a: &Atlas) -> Vec<f32> {
     v.iter().map(|x| x[0]).collect()
 }
 
+/// Ties the bilinear taps on gutter texels to the chart texels the output albedo's gutters are
+/// filled from ([`super::inpaint::dilate_weights`], the linear map of the owned rings of
+/// [`super::inpaint::dilate`]): the model of a pixel near a chart border then predicts what the
+/// recovered texture renders there, instead of leaving the gutter texels as free unknowns whose
+/// solved values the output replaces. Gutter texels the owned rings do not reach stay their own
+/// columns. Rewrites each row's entries to (column texel, geometric weight) and returns per
+/// entry the weight-averaged shading `sd` of the texels behind it (B = shading × K per tapped
+/// texel, K of a gutter = the dilation of its chart's K).
+fn tie_gutters(rows: &mut [Row], a: &Atlas, sd: &[f32]) -> Vec<Vec<f32>> {
+    let covered: Vec<bool> = a.texel_tri.iter().map(|&t| t != NO_TRI).collect();
+    let tie = super::inpaint::dilate_weights(&covered, &a.texel_owner, a.width, a.height);
+    rows.par_iter_mut()
+        .map(|r| {
+            // (column, geometric weight, geometric weight × shading of the tapped texel)
+            let mut e: Vec<(u32, f32, f32)> = Vec::with_capacity(r.entries.len() * 2);
+            for &(c, v) in &r.entries {
+                let ci = c as usize;
+                if covered[ci] || tie[ci].is_empty() {
+                    e.push((c, v, v * sd[ci]));
+                } else {
+                    for &(k, w) in &tie[ci] {
+                        e.push((k, v * w, v * w * sd[ci]));
+                    }
+                }
+            }
+            e.sort_unstable_by_key(|x| x.0);
+            let mut merged: Vec<(u32, f32, f32)> = Vec::with_capacity(e.len());
+            for (c, v, vs) in e {
+                match merged.last_mut() {
+                    Some(l) if l.0 == c => {
+                        l.1 += v;
+                        l.2 += vs;
+                    }
+                    _ => merged.push((c, v, vs)),
+                }
+            }
+            r.entries = merged.iter().map(|&(c, v, _)| (c, v)).collect();
+            merged.iter().map(|&(_, v, vs)| if v > 0.0 { vs / v } else { 0.0 }).collect()
+        })
+        .collect()
+}
+
 /// Super-resolved radiance map of one object from every view: values per texel (RGB radiance)
 /// and the observed mask. `(init, init_obs)` is the back-projected map and its mask (warm start;
 /// texels no pure pixel covers keep it). `shading` (per texel, any positive scale: the
@@ -444,6 +490,13 @@ pub fn superres_luminance(
     if rows.is_empty() {
         return None;
     }
+    // per-texel shading (gutters from their owner chart), then the gutter taps tied to the
+    // chart texels the output albedo's gutters are dilated from
+    let sd_t: Vec<f32> = match shading {
+        Some(sd) => shading_into_gutters(sd, a).iter().map(|v| v.max(0.0)).collect(),
+        None => vec![1.0; n],
+    };
+    let shade = tie_gutters(&mut rows, a, &sd_t);
     // unknowns: texels touched by some pixel
     let mut colw = vec![0f32; n];
     for r in &rows {
@@ -466,12 +519,13 @@ pub fn superres_luminance(
     // shading: the unknowns are K = B / sh (sh normalised to mean 1 over the unknowns), so the
     // edge prior acts on the albedo, not on the lighting's gradients and shadows
     let mut sh = vec![1f32; m];
-    if let Some(sd) = shading {
-        let sd = shading_into_gutters(sd, a);
-        let mean = texel_of.iter().map(|&t| sd[t].max(0.0) as f64).sum::<f64>() / m.max(1) as f64;
+    let mut sh_mean = 1f64;
+    if shading.is_some() {
+        let mean = texel_of.iter().map(|&t| sd_t[t] as f64).sum::<f64>() / m.max(1) as f64;
         if mean > 0.0 {
+            sh_mean = mean;
             for (j, &t) in texel_of.iter().enumerate() {
-                sh[j] = (sd[t] as f64 / mean).max(1e-3) as f32;
+                sh[j] = (sd_t[t] as f64 / mean).max(1e-3) as f32;
             }
         }
     }
@@ -511,11 +565,13 @@ pub fn superres_luminance(
     let mut col = Vec::new();
     let mut val = Vec::new();
     let mut y = Vec::with_capacity(rows.len());
-    for (r, &w) in rows.iter().zip(&rs) {
-        for &(c, v) in &r.entries {
+    for ((r, sr), &w) in rows.iter().zip(&shade).zip(&rs) {
+        for (&(c, v), &st) in r.entries.iter().zip(sr) {
+            // st: the tap-weighted shading of the texels behind this column (its own, and the
+            // gutters tied to it); the floor as for `sh`
             let j = idx[c as usize];
             col.push(j);
-            val.push(v * sh[j as usize] * w);
+            val.push(v * ((st as f64 / sh_mean).max(1e-3) as f32) * w);
         }
         ptr.push(col.len());
         y.push(r.y.map(|c| c * w / scale));
@@ -707,12 +763,29 @@ pub fn superres_luminance(
             });
         }
     }
-    // texels no pure pixel covers keep the back-projected value
+    // texels no pure pixel covers keep the back-projected value; tied gutter texels take the
+    // dilation of their chart's solution (× their own shading)
     let mut out = init.to_vec();
     let mut obs = init_obs.to_vec();
     for (j, &t) in texel_of.iter().enumerate() {
         out[t] = x[j].map(|c| (c * sh[j] * scale).max(0.0));
         obs[t] |= colw[t] >= s.min_weight && a.texel_tri[t] != NO_TRI;
+    }
+    let covered: Vec<bool> = a.texel_tri.iter().map(|&t| t != NO_TRI).collect();
+    let tie = super::inpaint::dilate_weights(&covered, &a.texel_owner, a.width, a.height);
+    for g in 0..n {
+        if covered[g] || tie[g].is_empty() || !tie[g].iter().all(|&(k, _)| idx[k as usize] != u32::MAX) {
+            continue;
+        }
+        let mut k = [0f32; 3];
+        for &(c, w) in &tie[g] {
+            let xj = x[idx[c as usize] as usize];
+            for ch in 0..3 {
+                k[ch] += w * xj[ch];
+            }
+        }
+        let shg = if shading.is_some() { (sd_t[g] as f64 / sh_mean).max(1e-3) as f32 } else { 1.0 };
+        out[g] = k.map(|c| (c * shg * scale).max(0.0));
     }
     Some((out, obs))
 }
