@@ -263,6 +263,64 @@ pub fn dilate(
     }
 }
 
+/// The owned part of [`dilate`] as a linear map: for every texel the owned rings fill
+/// (`!filled[i]`, `owner[i] != u32::MAX`, reached from a filled texel of its owner), the weights
+/// of the filled texels whose values it takes, so `values[i] = Σ w · values[j]` reproduces
+/// [`dilate`]'s owned rings exactly (same neighbours, same means, ring by ring). Filled texels map
+/// to themselves; texels the owned rings do not reach map to nothing. Used by the
+/// super-resolution to model the gutter texels the way the output albedo fills them.
+pub fn dilate_weights(filled: &[bool], owner: &[u32], width: usize, height: usize) -> Vec<Vec<(u32, f32)>> {
+    let n = width * height;
+    let mut wts: Vec<Vec<(u32, f32)>> =
+        (0..n).map(|i| if filled[i] { vec![(i as u32, 1.0)] } else { Vec::new() }).collect();
+    let mut have = filled.to_vec();
+    loop {
+        let prev = have.clone();
+        let mut new: Vec<(usize, Vec<(u32, f32)>)> = Vec::new();
+        for y in 0..height {
+            for x in 0..width {
+                let i = y * width + x;
+                if prev[i] || owner[i] == u32::MAX {
+                    continue;
+                }
+                let mut src: Vec<usize> = Vec::new();
+                for (dx, dy) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1), (-1, -1), (1, 1), (-1, 1), (1, -1)] {
+                    let (xx, yy) = (x as i64 + dx, y as i64 + dy);
+                    if xx < 0 || yy < 0 || xx >= width as i64 || yy >= height as i64 {
+                        continue;
+                    }
+                    let j = yy as usize * width + xx as usize;
+                    if prev[j] && owner[j] == owner[i] {
+                        src.push(j);
+                    }
+                }
+                if src.is_empty() {
+                    continue;
+                }
+                let k = 1.0 / src.len() as f32;
+                let mut acc: Vec<(u32, f32)> =
+                    src.iter().flat_map(|&j| wts[j].iter().map(|&(c, w)| (c, w * k))).collect();
+                acc.sort_unstable_by_key(|e| e.0);
+                let mut merged: Vec<(u32, f32)> = Vec::with_capacity(acc.len());
+                for (c, w) in acc {
+                    match merged.last_mut() {
+                        Some(l) if l.0 == c => l.1 += w,
+                        _ => merged.push((c, w)),
+                    }
+                }
+                new.push((i, merged));
+            }
+        }
+        if new.is_empty() {
+            return wts;
+        }
+        for (i, w) in new {
+            wts[i] = w;
+            have[i] = true;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -346,5 +404,54 @@ mod tests {
         }
         dilate(&mut v, &filled, &owner, w, h, 4);
         assert_eq!(v.iter().map(|p| p[0]).collect::<Vec<_>>(), [1.0, 1.0, 1.0, 1.0, 5.0, 5.0, 5.0, 5.0]);
+    }
+
+    #[test]
+    fn dilate_weights_reproduce_the_owned_rings() {
+        // two charts in a 12×7 grid with owned gutters around them and unowned texels between
+        let (w, h) = (12, 7);
+        let mut filled = vec![false; w * h];
+        let mut owner = vec![u32::MAX; w * h];
+        let mut v = vec![[0.0f32; 3]; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                if (2..4).contains(&x) && (2..5).contains(&y) {
+                    filled[i] = true;
+                    v[i] = [x as f32 + 0.3 * y as f32, (x * y) as f32, 1.0 + y as f32];
+                }
+                if (1..6).contains(&x) && (1..6).contains(&y) {
+                    owner[i] = 0;
+                }
+                if (8..10).contains(&x) && (3..4).contains(&y) {
+                    filled[i] = true;
+                    v[i] = [5.0 + x as f32, 2.0, 0.5 * y as f32];
+                }
+                if (7..11).contains(&x) && (2..5).contains(&y) {
+                    owner[i] = 1;
+                }
+            }
+        }
+        let wts = dilate_weights(&filled, &owner, w, h);
+        let mut d = v.clone();
+        dilate(&mut d, &filled, &owner, w, h, 0);
+        for i in 0..w * h {
+            if wts[i].is_empty() {
+                assert!(!filled[i] && (owner[i] == u32::MAX || d[i] == [0.0; 3]), "{i}");
+                continue;
+            }
+            let mut s = [0f32; 3];
+            for &(j, wt) in &wts[i] {
+                assert!(filled[j as usize] && owner[j as usize] == owner[i]);
+                for c in 0..3 {
+                    s[c] += wt * v[j as usize][c];
+                }
+            }
+            for c in 0..3 {
+                assert!((s[c] - d[i][c]).abs() < 1e-5, "{i}: {s:?} vs {:?}", d[i]);
+            }
+        }
+        // every owned texel of both charts is reached
+        assert!((0..w * h).all(|i| owner[i] == u32::MAX || !wts[i].is_empty()));
     }
 }

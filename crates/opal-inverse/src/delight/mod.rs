@@ -73,6 +73,7 @@ mod settings;
 mod smooth;
 mod stages;
 pub mod superres;
+mod superres_diag;
 mod timing;
 pub mod views;
 

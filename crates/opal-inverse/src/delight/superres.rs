@@ -35,7 +35,8 @@
 //! rays all hit the object (and that it *covers* in [`super::views::PureBuffer::covered`]: pure
 //! pixels plus those across gentle creases, which the per-ray model represents) are used, so
 //! occlusion and anti-aliased edges next to bright emitters never enter; prior edges never cross
-//! a chart seam. A texel counts as observed when the pixels covering it give it a total weight ≥
+//! a chart seam. Bilinear taps on gutter texels are tied to the chart texels the output albedo's
+//! gutters are dilated from (`tie_gutters`), so the model renders what the output texture will. A texel counts as observed when the pixels covering it give it a total weight ≥
 //! [`SrSettings::min_weight`].
 //!
 //! Error analysis hooks ([`SrDiagnostics`], for `bench/scripts/delight_psnr_budget.py`; all off
@@ -83,7 +84,10 @@ pub struct SrSettings {
     /// norm `sqrt(rᵀM⁻¹r)` of every channel has fallen by this factor from its start (0 = always
     /// run `cg_iters`).
     pub cg_tolerance: f32,
-    /// Minimum total pixel weight for a texel to count as observed.
+    /// Minimum total pixel weight for a texel to count as observed (default 1/16: one of the
+    /// 4 × 4 sub-pixel rays' worth; a texel seen at a grazing angle takes a small share of each
+    /// pixel whose footprint covers many texels, and the solve's value there, fitted to those
+    /// pixels' averages, beats inpainting it).
     pub min_weight: f32,
     /// Error-analysis hooks (all off by default; no effect on the results unless `synth` is set).
     pub diagnostics: SrDiagnostics,
@@ -119,7 +123,7 @@ impl Default for SrSettings {
             irls: 6,
             cg_iters: 60,
             cg_tolerance: 0.0,
-            min_weight: 0.25,
+            min_weight: 0.0625,
             diagnostics: SrDiagnostics::default(),
         }
     }
@@ -176,10 +180,10 @@ impl Csr {
 }
 
 /// One observed pixel: the texel weights of its S² sub-pixel samples and its value.
-struct Row {
-    entries: Vec<(u32, f32)>,
-    y: [f32; 3],
-    pix: u32,
+pub(super) struct Row {
+    pub(super) entries: Vec<(u32, f32)>,
+    pub(super) y: [f32; 3],
+    pub(super) pix: u32,
 }
 
 fn bary(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> (f32, f32, f32) {
@@ -266,138 +270,6 @@ fn view_rows(scene: &Scene, shape: u32, a: &Atlas, view: &View, pure: &PureBuffe
         .collect()
 }
 
-/// Diagnostic ([`SrDiagnostics::truth`], [`SrDiagnostics::residual_dir`]): residual of the
-/// observation operator applied to a given radiance map against the photo, per view, normalised
-/// by the photo's standard error (`<view>_stderr.exr` next to the image, when present).
-fn diag_residual(
-    v: &View,
-    rows: &mut [Row],
-    a: &Atlas,
-    fine: &std::collections::HashMap<u32, &Row>,
-    d: &SrDiagnostics,
-) {
-    let (Some(tp), Some(dir)) = (&d.truth, &d.residual_dir) else { return };
-    let Ok(b) = opal::image::read::read_image(tp) else { return };
-    if b.width != a.width || b.height != a.height {
-        return;
-    }
-    let se_path = v.path.with_file_name(format!("{}_stderr.exr", v.name));
-    let se = opal::image::read::read_image(&se_path).ok();
-    let (w, h) = (v.camera.width, v.camera.height);
-    let mut res = opal::image::Image::new(w, h);
-    let mut nrm = opal::image::Image::new(w, h);
-    let (mut chi, mut rel, mut n) = (0f64, 0f64, 0usize);
-    let synth = d.synth.clone();
-    let mut rng = opal::sampling::Rng::new(77, v.name.len() as u64, rows.len() as u64);
-    // "shuffle": the real residuals normalised by the standard error, permuted over the pixels
-    // (keeps their distribution, drops any spatial structure); "relshuffle": the same with the
-    // residuals relative to the prediction
-    let mut perm: Vec<[f32; 3]> = Vec::new();
-    if matches!(synth.as_deref(), Some("shuffle") | Some("relshuffle")) {
-        for r in rows.iter() {
-            let mut pred = [0f32; 3];
-            for &(c, wt) in &r.entries {
-                for ch in 0..3 {
-                    pred[ch] += wt * b.data[c as usize][ch];
-                }
-            }
-            let den: [f32; 3] = match (synth.as_deref(), &se) {
-                (Some("shuffle"), Some(se)) => se.data[r.pix as usize].0,
-                _ => pred,
-            };
-            perm.push(std::array::from_fn(|ch| (r.y[ch] - pred[ch]) / den[ch].max(1e-9)));
-        }
-        for i in (1..perm.len()).rev() {
-            let j = ((rng.next_f32() * (i + 1) as f32) as usize).min(i);
-            perm.swap(i, j);
-        }
-    }
-    for (ri, r) in rows.iter_mut().enumerate() {
-        let mut pred = [0f32; 3];
-        for &(c, wt) in &r.entries {
-            let t = b.data[c as usize];
-            for ch in 0..3 {
-                pred[ch] += wt * t[ch];
-            }
-        }
-        if let Some(sy) = &synth {
-            if let Some(g) = fine.get(&r.pix) {
-                pred = [0f32; 3];
-                for &(c, wt) in &g.entries {
-                    let t = b.data[c as usize];
-                    for ch in 0..3 {
-                        pred[ch] += wt * t[ch];
-                    }
-                }
-            }
-            // synthetic photo: the truth through the operator, plus Gaussian noise of the photo's
-            // standard error ("stderr") or of a relative level
-            let sd: [f32; 3] = match (sy.as_str(), &se) {
-                ("stderr" | "stderrcorr", Some(se)) => se.data[r.pix as usize].0,
-                (x, _) => {
-                    let k: f32 = x.parse().unwrap_or(0.0);
-                    pred.map(|p| k * p)
-                }
-            };
-            if let (Some(k), Some(se)) = (sy.strip_prefix("clip").and_then(|k| k.parse::<f32>().ok()), &se) {
-                // oracle: the real photo with its residual clipped at k standard errors
-                let sd = se.data[r.pix as usize].0;
-                for ch in 0..3 {
-                    r.y[ch] = pred[ch] + (r.y[ch] - pred[ch]).clamp(-k * sd[ch], k * sd[ch]);
-                }
-            } else if !perm.is_empty() {
-                let den: [f32; 3] = match (sy.as_str(), &se) {
-                    ("shuffle", Some(se)) => se.data[r.pix as usize].0,
-                    _ => pred,
-                };
-                for ch in 0..3 {
-                    r.y[ch] = pred[ch] + den[ch] * perm[ri][ch];
-                }
-            } else {
-                let mut gauss = || {
-                    // Box–Muller
-                    let (u1, u2) = (rng.next_f32().max(1e-7), rng.next_f32());
-                    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f32::consts::PI * u2).cos()
-                };
-                // "stderrcorr": channels correlated (ρ = 0.7, as the real residuals)
-                let g0 = gauss();
-                let rho: f32 = if sy == "stderrcorr" { 0.7 } else { 0.0 };
-                for ch in 0..3 {
-                    let g = rho.sqrt() * g0 + (1.0 - rho).sqrt() * gauss();
-                    r.y[ch] = pred[ch] + sd[ch] * g;
-                }
-            }
-        }
-        let d: [f32; 3] = std::array::from_fn(|ch| r.y[ch] - pred[ch]);
-        res.data[r.pix as usize] = opal::spectrum::Spectrum(d);
-        if let Some(se) = &se {
-            let s = se.data[r.pix as usize];
-            let z: [f32; 3] = std::array::from_fn(|ch| d[ch] / s[ch].max(1e-9));
-            nrm.data[r.pix as usize] = opal::spectrum::Spectrum(z);
-            for ch in 0..3 {
-                chi += (z[ch] as f64).powi(2);
-            }
-        }
-        for ch in 0..3 {
-            rel += (d[ch] as f64 / pred[ch].max(1e-9) as f64).powi(2);
-        }
-        n += 3;
-    }
-    eprintln!(
-        "diag {}: {} rows, chi2/n {:.3}, rms rel residual {:.4}",
-        v.name,
-        rows.len(),
-        chi / n.max(1) as f64,
-        (rel / n.max(1) as f64).sqrt()
-    );
-    for (what, img) in [("res", &res), ("z", &nrm)] {
-        let p = dir.join(format!("{}_{what}.exr", v.name));
-        if let Ok(f) = std::fs::File::create(p) {
-            let _ = opal::image::write::write_exr(img, std::io::BufWriter::new(f));
-        }
-    }
-}
-
 /// The shading with the gutter texels (no triangle, so no irradiance estimate: 0) filled from
 /// their owner chart's texels ([`super::inpaint::dilate`], as the albedo's gutters are filled).
 /// The bilinear taps of a sub-pixel ray near a chart border read gutter texels; with a shading
@@ -408,6 +280,48 @@ fn shading_into_gutters(sd: &[f32], a: &Atlas) -> Vec<f32> {
     let filled: Vec<bool> = a.texel_tri.iter().map(|&t| t != NO_TRI).collect();
     super::inpaint::dilate(&mut v, &filled, &a.texel_owner, a.width, a.height, 2);
     v.iter().map(|x| x[0]).collect()
+}
+
+/// Ties the bilinear taps on gutter texels to the chart texels the output albedo's gutters are
+/// filled from ([`super::inpaint::dilate_weights`], the linear map of the owned rings of
+/// [`super::inpaint::dilate`]): the model of a pixel near a chart border then predicts what the
+/// recovered texture renders there, instead of leaving the gutter texels as free unknowns whose
+/// solved values the output replaces. Gutter texels the owned rings do not reach stay their own
+/// columns. Rewrites each row's entries to (column texel, geometric weight) and returns per
+/// entry the weight-averaged shading `sd` of the texels behind it (B = shading × K per tapped
+/// texel, K of a gutter = the dilation of its chart's K).
+fn tie_gutters(rows: &mut [Row], a: &Atlas, sd: &[f32]) -> Vec<Vec<f32>> {
+    let covered: Vec<bool> = a.texel_tri.iter().map(|&t| t != NO_TRI).collect();
+    let tie = super::inpaint::dilate_weights(&covered, &a.texel_owner, a.width, a.height);
+    rows.par_iter_mut()
+        .map(|r| {
+            // (column, geometric weight, geometric weight × shading of the tapped texel)
+            let mut e: Vec<(u32, f32, f32)> = Vec::with_capacity(r.entries.len() * 2);
+            for &(c, v) in &r.entries {
+                let ci = c as usize;
+                if covered[ci] || tie[ci].is_empty() {
+                    e.push((c, v, v * sd[ci]));
+                } else {
+                    for &(k, w) in &tie[ci] {
+                        e.push((k, v * w, v * w * sd[ci]));
+                    }
+                }
+            }
+            e.sort_unstable_by_key(|x| x.0);
+            let mut merged: Vec<(u32, f32, f32)> = Vec::with_capacity(e.len());
+            for (c, v, vs) in e {
+                match merged.last_mut() {
+                    Some(l) if l.0 == c => {
+                        l.1 += v;
+                        l.2 += vs;
+                    }
+                    _ => merged.push((c, v, vs)),
+                }
+            }
+            r.entries = merged.iter().map(|&(c, v, _)| (c, v)).collect();
+            merged.iter().map(|&(_, v, vs)| if v > 0.0 { vs / v } else { 0.0 }).collect()
+        })
+        .collect()
 }
 
 /// Super-resolved radiance map of one object from every view: values per texel (RGB radiance)
@@ -438,12 +352,19 @@ pub fn superres_luminance(
         let gen_ss = s.diagnostics.synth_subsamples;
         let fine = if gen_ss > 0 { view_rows(scene, shape, a, v, pb, gen_ss) } else { Vec::new() };
         let fine: std::collections::HashMap<u32, &Row> = fine.iter().map(|r| (r.pix, r)).collect();
-        diag_residual(v, &mut vr, a, &fine, &s.diagnostics);
+        super::superres_diag::diag_residual(v, &mut vr, a, &fine, &s.diagnostics);
         rows.extend(vr);
     }
     if rows.is_empty() {
         return None;
     }
+    // per-texel shading (gutters from their owner chart), then the gutter taps tied to the
+    // chart texels the output albedo's gutters are dilated from
+    let sd_t: Vec<f32> = match shading {
+        Some(sd) => shading_into_gutters(sd, a).iter().map(|v| v.max(0.0)).collect(),
+        None => vec![1.0; n],
+    };
+    let shade = tie_gutters(&mut rows, a, &sd_t);
     // unknowns: texels touched by some pixel
     let mut colw = vec![0f32; n];
     for r in &rows {
@@ -466,12 +387,13 @@ pub fn superres_luminance(
     // shading: the unknowns are K = B / sh (sh normalised to mean 1 over the unknowns), so the
     // edge prior acts on the albedo, not on the lighting's gradients and shadows
     let mut sh = vec![1f32; m];
-    if let Some(sd) = shading {
-        let sd = shading_into_gutters(sd, a);
-        let mean = texel_of.iter().map(|&t| sd[t].max(0.0) as f64).sum::<f64>() / m.max(1) as f64;
+    let mut sh_mean = 1f64;
+    if shading.is_some() {
+        let mean = texel_of.iter().map(|&t| sd_t[t] as f64).sum::<f64>() / m.max(1) as f64;
         if mean > 0.0 {
+            sh_mean = mean;
             for (j, &t) in texel_of.iter().enumerate() {
-                sh[j] = (sd[t] as f64 / mean).max(1e-3) as f32;
+                sh[j] = (sd_t[t] as f64 / mean).max(1e-3) as f32;
             }
         }
     }
@@ -511,11 +433,13 @@ pub fn superres_luminance(
     let mut col = Vec::new();
     let mut val = Vec::new();
     let mut y = Vec::with_capacity(rows.len());
-    for (r, &w) in rows.iter().zip(&rs) {
-        for &(c, v) in &r.entries {
+    for ((r, sr), &w) in rows.iter().zip(&shade).zip(&rs) {
+        for (&(c, v), &st) in r.entries.iter().zip(sr) {
+            // st: the tap-weighted shading of the texels behind this column (its own, and the
+            // gutters tied to it); the floor as for `sh`
             let j = idx[c as usize];
             col.push(j);
-            val.push(v * sh[j as usize] * w);
+            val.push(v * ((st as f64 / sh_mean).max(1e-3) as f32) * w);
         }
         ptr.push(col.len());
         y.push(r.y.map(|c| c * w / scale));
@@ -707,12 +631,29 @@ pub fn superres_luminance(
             });
         }
     }
-    // texels no pure pixel covers keep the back-projected value
+    // texels no pure pixel covers keep the back-projected value; tied gutter texels take the
+    // dilation of their chart's solution (× their own shading)
     let mut out = init.to_vec();
     let mut obs = init_obs.to_vec();
     for (j, &t) in texel_of.iter().enumerate() {
         out[t] = x[j].map(|c| (c * sh[j] * scale).max(0.0));
         obs[t] |= colw[t] >= s.min_weight && a.texel_tri[t] != NO_TRI;
+    }
+    let covered: Vec<bool> = a.texel_tri.iter().map(|&t| t != NO_TRI).collect();
+    let tie = super::inpaint::dilate_weights(&covered, &a.texel_owner, a.width, a.height);
+    for g in 0..n {
+        if covered[g] || tie[g].is_empty() || !tie[g].iter().all(|&(k, _)| idx[k as usize] != u32::MAX) {
+            continue;
+        }
+        let mut k = [0f32; 3];
+        for &(c, w) in &tie[g] {
+            let xj = x[idx[c as usize] as usize];
+            for ch in 0..3 {
+                k[ch] += w * xj[ch];
+            }
+        }
+        let shg = if shading.is_some() { (sd_t[g] as f64 / sh_mean).max(1e-3) as f32 } else { 1.0 };
+        out[g] = k.map(|c| (c * shg * scale).max(0.0));
     }
     Some((out, obs))
 }
