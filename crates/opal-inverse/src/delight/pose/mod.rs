@@ -36,7 +36,11 @@
 //! concave edge (a room's corners, a contact with the floor) the luminance changes fastest, and
 //! a flat fill there gives the predicted edge the wrong profile, which pulls the alignment
 //! sideways (measured on the Mitsuba room: exact views drifted by up to 0.28 px with the flat
-//! 3-px bands). After the refinement the de-lighting leaves out the pixels within
+//! 3-px bands). In those rounds the prediction covers only the observed texels and those the
+//! first-order fill reached ([`PoseSettings::linear_domain`]): a region that only the view
+//! itself sees was otherwise predicted by the inpainting's flat extension (up to 48 texels),
+//! and the misfit held that view 0.35 px off on the Mitsuba room (`view_03`; 0.09 px with it).
+//! After the refinement the de-lighting leaves out the pixels within
 //! [`PoseSettings::delight_edge_margin`] (1) px of an edge ([`erode_smooth`]).
 //!
 //! Prior and convergence: each alignment may be pulled toward the given pose by a Gaussian prior
