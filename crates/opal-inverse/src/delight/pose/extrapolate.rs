@@ -5,15 +5,18 @@
 //! alignment sideways. Each band texel within `max_d` steps of an observed texel gets the value
 //! of the least-squares plane `a + b·x + c·y` through the observed texels of its chart within a
 //! window `d + 3` texels wide (`d` = its distance), when that window holds at least 8 of them
-//! spread over both axes; otherwise it keeps its value.
+//! spread over both axes; otherwise it keeps its value. It returns which texels it filled: the
+//! pose refinement's fine rounds predict only from the observed texels and those
+//! ([`super::PoseSettings::linear_domain`]), not from the inpainting's flat extension further out.
 //!
-//! Tests: below (a linear ramp cut by a band is restored exactly; a texel without enough
-//! support keeps its value).
+//! Tests: below (a linear ramp cut by a band is restored exactly and reported filled; a texel
+//! without enough support keeps its value and is not reported).
 
 use rayon::prelude::*;
 
 /// See the module documentation. `dist[i]`: 4-neighbour steps from the nearest observed texel of
-/// the chart (`usize::MAX`: unreachable); `chart[i]`: the texel's chart.
+/// the chart (`usize::MAX`: unreachable); `chart[i]`: the texel's chart. Returns per texel
+/// whether it got the plane's value.
 pub(super) fn extrapolate_linear(
     l: &mut [f32],
     obs: &[bool],
@@ -22,7 +25,7 @@ pub(super) fn extrapolate_linear(
     w: usize,
     h: usize,
     max_d: usize,
-) {
+) -> Vec<bool> {
     let src: &[f32] = l;
     let new: Vec<(usize, f32)> = (0..w * h)
         .into_par_iter()
@@ -64,9 +67,12 @@ pub(super) fn extrapolate_linear(
             sol[0].is_finite().then_some((i, sol[0] as f32))
         })
         .collect();
+    let mut filled = vec![false; w * h];
     for (i, v) in new {
         l[i] = v;
+        filled[i] = true;
     }
+    filled
 }
 
 #[cfg(test)]
@@ -80,14 +86,17 @@ mod tests {
         let obs: Vec<bool> = (0..w * h).map(|i| i % w < 16).collect();
         let dist: Vec<usize> = (0..w * h).map(|i| (i % w).saturating_sub(15)).collect();
         let mut l: Vec<f32> = (0..w * h).map(|i| if obs[i] { f(i % w, i / w) } else { 0.3 }).collect();
-        extrapolate_linear(&mut l, &obs, &dist, &vec![0; w * h], w, h, 6);
+        let filled = extrapolate_linear(&mut l, &obs, &dist, &vec![0; w * h], w, h, 6);
         for i in 0..w * h {
             let (x, y) = (i % w, i / w);
             if x < 22 {
                 assert!((l[i] - f(x, y)).abs() < 1e-4, "({x}, {y}): {} vs {}", l[i], f(x, y));
+                // observed texels are not "filled"; the band within max_d is
+                assert_eq!(filled[i], x >= 16, "({x}, {y})");
             } else {
-                // beyond max_d: untouched
+                // beyond max_d: untouched, not filled
                 assert_eq!(l[i], 0.3);
+                assert!(!filled[i]);
             }
         }
     }
@@ -98,8 +107,9 @@ mod tests {
         let obs: Vec<bool> = (0..w).map(|i| i < 5).collect();
         let dist: Vec<usize> = (0..w).map(|i| i.saturating_sub(4)).collect();
         let mut l: Vec<f32> = (0..w).map(|i| if i < 5 { i as f32 } else { -1.0 }).collect();
-        extrapolate_linear(&mut l, &obs, &dist, &[0; 10], w, h, 6);
+        let filled = extrapolate_linear(&mut l, &obs, &dist, &[0; 10], w, h, 6);
         // one row: the plane is not determined along y
         assert!(l[5..].iter().all(|&v| v == -1.0));
+        assert!(filled.iter().all(|&f| !f));
     }
 }

@@ -36,7 +36,11 @@
 //! concave edge (a room's corners, a contact with the floor) the luminance changes fastest, and
 //! a flat fill there gives the predicted edge the wrong profile, which pulls the alignment
 //! sideways (measured on the Mitsuba room: exact views drifted by up to 0.28 px with the flat
-//! 3-px bands). After the refinement the de-lighting leaves out the pixels within
+//! 3-px bands). In those rounds the prediction covers only the observed texels and those the
+//! first-order fill reached ([`PoseSettings::linear_domain`]): a region that only the view
+//! itself sees was otherwise predicted by the inpainting's flat extension (up to 48 texels),
+//! and the misfit held that view 0.35 px off on the Mitsuba room (`view_03`; 0.09 px with it).
+//! After the refinement the de-lighting leaves out the pixels within
 //! [`PoseSettings::delight_edge_margin`] (1) px of an edge ([`erode_smooth`]).
 //!
 //! Prior and convergence: each alignment may be pulled toward the given pose by a Gaussian prior
@@ -126,6 +130,12 @@ pub struct PoseSettings {
     /// extrapolated to first order (`extrapolate.rs`) instead of the inpainting's zero order;
     /// 0: off.
     pub linear_bands: usize,
+    /// In the rounds with [`Self::fine_edge_margin`] and with [`Self::linear_bands`] on, the
+    /// prediction covers only the observed texels and those the first-order fill reached: a
+    /// pixel whose surface point only the inpainting's flat extension (up to 48 texels from the
+    /// other views' pixels) predicts leaves the residual (a region only this view sees is
+    /// otherwise predicted flat, and the misfit pulls its pose).
+    pub linear_domain: bool,
     /// After the refinement, the de-lighting leaves out the pixels within this many pixels of
     /// a change of shape or plane ([`erode_smooth`]): the refined poses are known to a fraction
     /// of a pixel, and a pixel next to an edge may show the other side. Default 0 (measured on
@@ -174,6 +184,7 @@ impl Default for PoseSettings {
             fine_edge_margin: 1,
             fine_sigmas: Some(vec![2.0, 1.0]),
             linear_bands: 8,
+            linear_domain: true,
             delight_edge_margin: 0,
             max_rotation_deg: 3.0,
             max_translation: 0.05,
@@ -369,8 +380,10 @@ fn erode_with(pb: &PureBuffer, r: usize, min_cos: impl Fn(usize, usize) -> f32 +
 }
 
 /// Luminance map of one object from `views` (pure buffers `pure`, eroded), extended over the
-/// texels within 48 texels of an observed texel of the same chart; returns the
-/// luminance and where it is defined.
+/// texels within 48 texels of an observed texel of the same chart (the texels within
+/// `linear_bands` to first order); returns the luminance and where it is defined: the extended
+/// texels, or with `linear_domain` (and `linear_bands` > 0) only the observed texels and those
+/// the first-order fill reached.
 fn edge_free_map(
     scene: &Scene,
     shape: u32,
@@ -378,8 +391,20 @@ fn edge_free_map(
     views: &[View],
     pure: &[PureBuffer],
     linear_bands: usize,
+    linear_domain: bool,
 ) -> (Vec<f32>, Vec<bool>) {
-    let (mut l, obs) = luminance_map(scene, shape, a, views, pure);
+    let (l, obs) = luminance_map(scene, shape, a, views, pure);
+    extend_map(a, l, obs, linear_bands, linear_domain)
+}
+
+/// The extension of [`edge_free_map`] of the map `l` (observed texels `obs`) of atlas `a`.
+fn extend_map(
+    a: &Atlas,
+    mut l: Vec<[f32; 3]>,
+    obs: Vec<bool>,
+    linear_bands: usize,
+    linear_domain: bool,
+) -> (Vec<f32>, Vec<bool>) {
     let (w, h) = (a.width, a.height);
     let n = w * h;
     let chart: Vec<u32> = (0..n).map(|i| a.texel_chart(i)).collect();
@@ -419,11 +444,14 @@ fn edge_free_map(
             }
         }
     }
-    let domain: Vec<bool> = dist.iter().map(|&d| d != usize::MAX).collect();
+    let mut domain: Vec<bool> = dist.iter().map(|&d| d != usize::MAX).collect();
     super::inpaint::inpaint(&mut l, &obs, &domain, &chart, w, h, 3);
     let mut lum: Vec<f32> = l.iter().map(|&c| luminance(c)).collect();
     if linear_bands > 0 {
-        extrapolate::extrapolate_linear(&mut lum, &obs, &dist, &chart, w, h, linear_bands);
+        let filled = extrapolate::extrapolate_linear(&mut lum, &obs, &dist, &chart, w, h, linear_bands);
+        if linear_domain {
+            domain = (0..n).map(|i| obs[i] || filled[i]).collect();
+        }
     }
     (lum, domain)
 }
@@ -502,11 +530,8 @@ pub fn refine_poses(
                 v
             })
             .collect();
-        let margin = if round > s.rotation_rounds.min(s.rounds.max(1) - 1) {
-            s.fine_edge_margin
-        } else {
-            s.edge_margin
-        };
+        let fine = round > s.rotation_rounds.min(s.rounds.max(1) - 1);
+        let margin = if fine { s.fine_edge_margin } else { s.edge_margin };
         let pure: Vec<PureBuffer> =
             current.iter().map(|v| erode(&views::pure_buffer(scene, &v.camera), margin)).collect();
         let depths: Vec<Vec<f32>> = if s.joint {
@@ -528,7 +553,9 @@ pub fn refine_poses(
             let op: Vec<PureBuffer> = others.iter().map(|&j| pure[j].clone()).collect();
             let maps: Vec<(Vec<f32>, Vec<bool>)> = objects
                 .par_iter()
-                .map(|&(shape, a)| edge_free_map(scene, shape, a, &ov, &op, s.linear_bands))
+                .map(|&(shape, a)| {
+                    edge_free_map(scene, shape, a, &ov, &op, s.linear_bands, fine && s.linear_domain)
+                })
                 .collect();
             let eye = current[k].camera.origin();
             let predict = |si: &SurfaceInteraction| -> Option<f32> {
@@ -544,7 +571,6 @@ pub fn refine_poses(
             // translation that nearly cancel at the depth of the scene) is weakly constrained and
             // would follow the blur of maps made from misregistered views
             let rot_only = round < s.rotation_rounds.min(s.rounds.max(1) - 1);
-            let fine = round > s.rotation_rounds.min(s.rounds.max(1) - 1);
             let sigmas = match &s.fine_sigmas {
                 Some(f) if fine => f.clone(),
                 _ => s.sigmas.clone(),

@@ -152,3 +152,42 @@ fn common_motion_of_all_views_recovered() {
         assert!(with < 0.15 && with < 0.5 * neither, "{with:.3} px with, {neither:.3} px without");
     }
 }
+
+/// With [`PoseSettings::linear_domain`] the extended map is defined only on the observed texels
+/// and those the first-order fill reached (within `linear_bands` 4-neighbour steps), not on the
+/// flat extension that reaches 48 texels.
+#[test]
+fn linear_domain_limits_the_map_to_the_first_order_fill() {
+    let (_, _, atlases, _) = setup();
+    let a = &atlases[0];
+    let (w, h) = (a.width, a.height);
+    let covered = |i: usize| a.texel_tri[i] != NO_TRI;
+    // observed: the covered texels of the left half; a luminance ramp
+    let obs: Vec<bool> = (0..w * h).map(|i| covered(i) && i % w < w / 2).collect();
+    let l: Vec<[f32; 3]> =
+        (0..w * h).map(|i| if obs[i] { [0.2 + 0.001 * (i % w) as f32; 3] } else { [0.0; 3] }).collect();
+    let bands = 4;
+    let (_, wide) = extend_map(a, l.clone(), obs.clone(), bands, false);
+    let (lum, narrow) = extend_map(a, l, obs.clone(), bands, true);
+    let beyond = |i: usize| !obs[i] && i % w >= w / 2 + bands;
+    let band = |i: usize| !obs[i] && i % w >= w / 2 && i % w < w / 2 + bands;
+    let count = |d: &[bool], f: &dyn Fn(usize) -> bool| (0..w * h).filter(|&i| d[i] && f(i)).count();
+    eprintln!(
+        "band texels: {} wide, {} narrow; beyond: {} wide, {} narrow",
+        count(&wide, &band),
+        count(&narrow, &band),
+        count(&wide, &beyond),
+        count(&narrow, &beyond)
+    );
+    // every observed texel stays; the flat extension reaches past the bands, the narrow
+    // domain does not, but covers band texels (with the ramp's first-order values)
+    assert!((0..w * h).all(|i| !obs[i] || (wide[i] && narrow[i])));
+    assert!(count(&wide, &beyond) > 0);
+    assert_eq!(count(&narrow, &beyond), 0);
+    assert!(count(&narrow, &band) > 0);
+    assert!((0..w * h).all(|i| !narrow[i] || wide[i]));
+    for i in (0..w * h).filter(|&i| narrow[i] && band(i)) {
+        let want = 0.2 + 0.001 * (i % w) as f32;
+        assert!((lum[i] - want).abs() < 1e-3, "texel {i}: {} vs {want}", lum[i]);
+    }
+}
