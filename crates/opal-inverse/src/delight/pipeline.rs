@@ -93,8 +93,10 @@ pub fn delight(
     cancelled(s)?;
     // initial indirect irradiance: gathered from the luminance maps (or a share of `Ed`)
     let t0 = StageClock::start();
+    let solo = opal::dist::Solo;
+    let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
     let gathered =
-        (s.gather_rays > 0).then(|| gather::gather_indirect(&scene, &objects, s.gather_rays, s.seed));
+        (s.gather_rays > 0).then(|| gather::gather_indirect(&scene, &objects, s.gather_rays, s.seed, comm));
     for (j, o) in objects.iter_mut().enumerate() {
         initial_kd(o, s.indirect_share, avg, gathered.as_ref().map(|g| g[j].as_slice()));
     }
