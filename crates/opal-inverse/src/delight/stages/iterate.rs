@@ -18,7 +18,7 @@ use crate::delight::timing::{StageClock, Timings};
 use crate::delight::views::{PureBuffer, View};
 use crate::delight::{
     DelightSettings, IterationStats, LightPaths, ObjectResult, UpdateRule, luminance, noise, reached_texels,
-    recovered_desc, smooth_in_charts_masked, superres,
+    recovered_desc, smooth_in_charts_masked, split, superres,
 };
 use opal::error::{Error, Result};
 use opal::integrator::light_tracer::{self, IrradianceMaps, IrradianceTarget, LightTraceSettings};
@@ -54,6 +54,32 @@ struct ObjectPass {
     noise: f64,
     /// Its residuals, corrected for the smoothing window (pooled over the objects).
     residuals: Vec<f64>,
+}
+
+impl ObjectPass {
+    /// Writes the pass's results exactly (for the other processes).
+    fn put(&self, p: &mut opal::dist::Packer) {
+        for x in [self.max, self.sum, self.direct_ratio, self.noise] {
+            p.f64(x);
+        }
+        p.u64(self.count as u64);
+        p.u64(self.outliers as u64);
+        p.u64(self.rel.len() as u64);
+        p.f32s(&self.rel);
+        p.u64(self.residuals.len() as u64);
+        self.residuals.iter().for_each(|&x| p.f64(x));
+    }
+    /// Reads what [`ObjectPass::put`] wrote.
+    fn get(u: &mut opal::dist::Unpacker) -> ObjectPass {
+        let [max, sum, direct_ratio, noise] = std::array::from_fn(|_| u.f64());
+        let count = u.u64() as usize;
+        let outliers = u.u64() as usize;
+        let n = u.u64() as usize;
+        let rel = (0..n).map(|_| u.f32()).collect();
+        let n = u.u64() as usize;
+        let residuals = (0..n).map(|_| u.f64()).collect();
+        ObjectPass { max, sum, count, outliers, rel, direct_ratio, noise, residuals }
+    }
 }
 
 /// Runs the light-tracing iterations on `objects` (luminance, direct irradiance and initial
@@ -162,14 +188,13 @@ pub(in crate::delight) fn iterate(
         let mut error_maps = Vec::new();
         let mut direct_ratio = Vec::new();
         let (mut gmax, mut gsum, mut gcount) = (0f64, 0f64, 0usize);
-        // objects in parallel (smoothing, error statistics, update and inpainting of each)
-        let post: Vec<ObjectPass> = objects
-            .par_iter_mut()
-            .map(|o| {
-                let m = out.maps[o.shape].as_ref().expect("target");
-                object_pass(o, m, k, s, log)
-            })
-            .collect();
+        // objects in parallel (smoothing, error statistics, update and inpainting of each); under
+        // several processes each object on one rank, its results then shared
+        let pass = |_: usize, o: &mut ObjectResult| {
+            let m = out.maps[o.shape].as_ref().expect("target");
+            object_pass(o, m, k, s, log)
+        };
+        let post: Vec<ObjectPass> = split::per_object(comm, objects, pass, ObjectPass::put, ObjectPass::get);
         let mut texel_noise = Vec::new();
         let mut all_residuals = Vec::new();
         for p in post {
