@@ -7,6 +7,10 @@
 #   OPAL_BIN: the binary (default target/release/opal, built with
 #   `cargo build --release -p opal-cli --features mpi`; run without mpirun it is one process
 #   and never initialises MPI, so both sides of a pair run the same code).
+#   OPAL_SETSID=1: start the one process and each rank in its own session (`setsid -w`). On a
+#   machine shared with other jobs, the kernel's autogroup scheduling gives all processes of one
+#   session one CPU share, so without it a second rank in the same session gains nothing under
+#   load; on a quiet machine leave it unset.
 #
 # Prints per pair: wall seconds and CPU seconds (user+sys of the process and its children, from
 # /usr/bin/time; for mpirun the ranks are its children) of both runs, the ratio of wall times,
@@ -20,6 +24,8 @@ BIN=${OPAL_BIN:-target/release/opal}
 [ -x "$BIN" ] || { echo "no $BIN: cargo build --release -p opal-cli --features mpi" >&2; exit 1; }
 command -v mpirun >/dev/null || { echo "mpirun not found (apt-get install openmpi-bin libopenmpi-dev)" >&2; exit 1; }
 MPIRUN=(mpirun --allow-run-as-root --oversubscribe --bind-to none -np 2)
+PRE=()
+[ "${OPAL_SETSID:-0}" = 1 ] && PRE=(setsid -w)
 TMP=$(mktemp -d)
 trap 'rm -rf "$TMP"' EXIT
 LS=crates/opal-inverse/tests/data/lights_small
@@ -47,8 +53,8 @@ for w in render gonio delight; do
     rm -rf "$TMP/one" "$TMP/two" && mkdir -p "$TMP/one" "$TMP/two"
     read -r -a a1 <<<"$(args_of $w | sed "s#OUT#$TMP/one#g")"
     read -r -a a2 <<<"$(args_of $w | sed "s#OUT#$TMP/two#g")"
-    read -r w1 c1 < <(timed "$BIN" "${a1[@]}")
-    read -r w2 c2 < <(timed "${MPIRUN[@]}" "$BIN" "${a2[@]}")
+    read -r w1 c1 < <(timed "${PRE[@]}" "$BIN" "${a1[@]}")
+    read -r w2 c2 < <(timed "${MPIRUN[@]}" "${PRE[@]}" "$BIN" "${a2[@]}")
     # report.json holds timings: compare every other file byte for byte
     same=yes
     while IFS= read -r f; do
