@@ -68,6 +68,15 @@ impl Packer {
     pub fn f64(&mut self, x: f64) {
         self.u64(x.to_bits());
     }
+    /// Appends a byte.
+    pub fn u8(&mut self, x: u8) {
+        self.0.push(x);
+    }
+    /// Appends a string (length, then its UTF-8 bytes).
+    pub fn str(&mut self, s: &str) {
+        self.u64(s.len() as u64);
+        self.0.extend_from_slice(s.as_bytes());
+    }
     /// Appends `f32`s (their bits: exact).
     pub fn f32s(&mut self, xs: &[f32]) {
         for x in xs {
@@ -97,31 +106,95 @@ impl Unpacker<'_> {
         self.0 = b;
         f32::from_bits(u32::from_le_bytes(a.try_into().expect("4 bytes")))
     }
+    /// Next byte.
+    pub fn u8(&mut self) -> u8 {
+        let (a, b) = self.0.split_first().expect("1 byte");
+        self.0 = b;
+        *a
+    }
+    /// Next string.
+    pub fn str(&mut self) -> String {
+        let n = self.u64() as usize;
+        let (a, b) = self.0.split_at(n);
+        self.0 = b;
+        String::from_utf8(a.to_vec()).expect("UTF-8")
+    }
+    /// Next three `f32`s (an RGB triple).
+    pub fn rgb(&mut self) -> [f32; 3] {
+        [self.f32(), self.f32(), self.f32()]
+    }
     /// Whether everything was read.
     pub fn is_empty(&self) -> bool {
         self.0.is_empty()
     }
 }
 
-/// Ranks simulated by threads of one process (for the library's own tests): `ThreadComm::group(n)`
-/// gives one handle per rank; each must run on its own thread.
-#[cfg(test)]
+/// The results of units `0..n` on every rank, in unit order: this rank computes `f(i)` for the
+/// units it owns (unit `i` belongs to rank `i mod size`; in parallel on this process's threads),
+/// the results are all-gathered — `put` writes one unit's result exactly, `get` reads it back —
+/// and every rank returns all `n`. With one rank nothing is packed: `f` runs on every unit.
+/// For per-unit results that depend only on the unit (its own random stream), so the output is
+/// the same bits for any number of ranks.
+pub fn map_units<T: Send>(
+    comm: &dyn Comm,
+    n: usize,
+    f: impl Fn(usize) -> T + Sync + Send,
+    put: impl Fn(&T, &mut Packer),
+    get: impl Fn(&mut Unpacker) -> T,
+) -> Vec<T> {
+    use rayon::prelude::*;
+    let size = comm.size();
+    if size == 1 {
+        return (0..n).into_par_iter().map(f).collect();
+    }
+    let mine: Vec<usize> = (comm.rank()..n).step_by(size).collect();
+    let vals: Vec<T> = mine.into_par_iter().map(&f).collect();
+    let mut p = Packer::default();
+    vals.iter().for_each(|v| put(v, &mut p));
+    drop(vals);
+    let all = comm.all_gather_bytes(&p.0);
+    drop(p);
+    let mut readers: Vec<Unpacker> = all.iter().map(|b| Unpacker(b)).collect();
+    let out = (0..n).map(|i| get(&mut readers[i % size])).collect();
+    assert!(readers.iter().all(|r| r.is_empty()), "a rank sent the units of another workload");
+    out
+}
+
+/// Owner rank of each of `costs.len()` tasks (e.g. objects), balanced by their estimated cost:
+/// the longest-processing-time rule (tasks by decreasing cost, ties by index, each to the rank
+/// with the least load so far, ties to the lowest rank). The same on every rank.
+pub fn assign_by_cost(costs: &[f64], size: usize) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..costs.len()).collect();
+    order.sort_by(|&a, &b| costs[b].total_cmp(&costs[a]).then(a.cmp(&b)));
+    let mut load = vec![0f64; size.max(1)];
+    let mut owner = vec![0; costs.len()];
+    for j in order {
+        let r = (0..load.len()).min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b))).expect("a rank");
+        owner[j] = r;
+        load[r] += costs[j];
+    }
+    owner
+}
+
+/// Ranks simulated by threads of one process (for tests of split workloads, here and in the
+/// crates built on this one): `ThreadComm::group(n)` gives one handle per rank; each must run on
+/// its own thread.
 #[derive(Clone, Debug)]
-pub(crate) struct ThreadComm {
+pub struct ThreadComm {
     rank: usize,
     shared: std::sync::Arc<(std::sync::Mutex<Vec<Vec<u8>>>, std::sync::Barrier)>,
 }
 
-#[cfg(test)]
 impl ThreadComm {
-    pub(crate) fn group(n: usize) -> Vec<ThreadComm> {
+    /// One handle per rank of a group of `n`.
+    pub fn group(n: usize) -> Vec<ThreadComm> {
         let shared =
             std::sync::Arc::new((std::sync::Mutex::new(vec![Vec::new(); n]), std::sync::Barrier::new(n)));
         (0..n).map(|rank| ThreadComm { rank, shared: shared.clone() }).collect()
     }
 
     /// Runs `f` once per rank of a group of `n`, each on its own thread; the results in rank order.
-    pub(crate) fn run<T: Send>(n: usize, f: impl Fn(&ThreadComm) -> T + Sync) -> Vec<T> {
+    pub fn run<T: Send>(n: usize, f: impl Fn(&ThreadComm) -> T + Sync) -> Vec<T> {
         let group = ThreadComm::group(n);
         std::thread::scope(|sc| {
             let hs: Vec<_> = group.iter().map(|c| sc.spawn(|| f(c))).collect();
@@ -130,7 +203,6 @@ impl ThreadComm {
     }
 }
 
-#[cfg(test)]
 impl Comm for ThreadComm {
     fn rank(&self) -> usize {
         self.rank
@@ -186,6 +258,44 @@ mod tests {
             assert_eq!(v, [3, u64::MAX - 2]);
             assert_eq!(owned, vec![r as u64, r as u64 + 3]);
         }
+    }
+
+    #[test]
+    fn map_units_gives_every_rank_all_units_in_order() {
+        let f = |i: usize| (i * i) as u64;
+        let want: Vec<u64> = (0..11).map(f).collect();
+        assert_eq!(map_units(&Solo, 11, f, |v, p| p.u64(*v), |u| u.u64()), want);
+        for n in [1, 2, 3] {
+            let out = ThreadComm::run(n, |c| {
+                // each rank computes only its own units
+                let calls = std::sync::atomic::AtomicUsize::new(0);
+                let v = map_units(
+                    c,
+                    11,
+                    |i| {
+                        calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        f(i)
+                    },
+                    |v, p| p.u64(*v),
+                    |u| u.u64(),
+                );
+                (v, calls.into_inner())
+            });
+            for (r, (v, calls)) in out.into_iter().enumerate() {
+                assert_eq!(v, want);
+                assert_eq!(calls, (r..11).step_by(n).count());
+            }
+        }
+    }
+
+    #[test]
+    fn assign_by_cost_balances_and_is_deterministic() {
+        // 5 + 2 + 1 = 8 = 4 + 4 (longest first: 5→0, 4→1, 4→1, 2→0, 1→0)
+        let costs = [4.0, 5.0, 1.0, 4.0, 2.0];
+        assert_eq!(assign_by_cost(&costs, 2), vec![1, 0, 0, 1, 0]);
+        assert_eq!(assign_by_cost(&costs, 1), vec![0; 5]);
+        // more ranks than tasks: one task each, the rest idle
+        assert_eq!(assign_by_cost(&[1.0, 1.0], 3), vec![0, 1]);
     }
 
     #[test]

@@ -18,7 +18,6 @@ use super::atlas::{Atlas, NO_TRI};
 use opal::math::{Vec2, Vec3};
 use opal::sampling::Rng;
 use opal::scene::Scene;
-use rayon::prelude::*;
 
 /// Direct irradiance per texel (step 4): `samples` light samples per texel (and per light when
 /// every light is sampled at every texel, see [`MAX_LIGHTS_PER_TEXEL`]).
@@ -40,6 +39,23 @@ pub fn direct_irradiance(
     seed: u64,
     stream: u64,
 ) -> Vec<[f32; 3]> {
+    direct_irradiance_split(scene, a, (samples, pilot), seed, stream, &opal::dist::Solo)
+}
+
+/// [`direct_irradiance`] (`(samples, pilot)`) with the texels split across the processes of
+/// `comm`: texel `i` is estimated by rank `i mod size` (its random numbers depend on `i` and the
+/// seed only), the pilot's results and the re-estimated penumbra texels are exchanged whole, and
+/// every rank returns the full map — the same bits as one process computes.
+pub fn direct_irradiance_split(
+    scene: &Scene,
+    a: &Atlas,
+    (samples, pilot): (u32, u32),
+    seed: u64,
+    stream: u64,
+    comm: &dyn opal::dist::Comm,
+) -> Vec<[f32; 3]> {
+    use opal::dist::map_units;
+    let put = |e: &[f32; 3], p: &mut opal::dist::Packer| p.f32s(e);
     let n = a.width * a.height;
     if scene.light_sampler().is_none() {
         return vec![[0.0; 3]; n];
@@ -48,25 +64,40 @@ pub fn direct_irradiance(
     let pilot_side = (pilot as f32).sqrt().ceil() as u32;
     let per_light = scene.lights.len() <= MAX_LIGHTS_PER_TEXEL;
     if !per_light || pilot == 0 || pilot_side >= side {
-        return (0..n)
-            .into_par_iter()
-            .map(|i| texel_direct(scene, a, i, side, &mut Rng::new(seed, stream, i as u64)).0)
-            .collect();
+        return map_units(
+            comm,
+            n,
+            |i| texel_direct(scene, a, i, side, &mut Rng::new(seed, stream, i as u64)).0,
+            put,
+            |u| u.rgb(),
+        );
     }
     // pilot pass (its own random stream), then the penumbrae (dilated) at the full count
-    let first: Vec<([f32; 3], bool)> = (0..n)
-        .into_par_iter()
-        .map(|i| texel_direct(scene, a, i, pilot_side, &mut Rng::new(seed, stream ^ PILOT_STREAM, i as u64)))
-        .collect();
+    let first: Vec<([f32; 3], bool)> = map_units(
+        comm,
+        n,
+        |i| texel_direct(scene, a, i, pilot_side, &mut Rng::new(seed, stream ^ PILOT_STREAM, i as u64)),
+        |(e, m), p| {
+            p.f32s(e);
+            p.u8(*m as u8);
+        },
+        |u| (u.rgb(), u.u8() != 0),
+    );
     let mixed: Vec<bool> = first.iter().map(|f| f.1).collect();
     let redo = dilate_mask(&mixed, a.width, a.height, PENUMBRA_DILATION);
-    first
-        .into_par_iter()
-        .enumerate()
-        .map(|(i, (e, _))| {
-            if redo[i] { texel_direct(scene, a, i, side, &mut Rng::new(seed, stream, i as u64)).0 } else { e }
-        })
-        .collect()
+    let redo_idx: Vec<usize> = (0..n).filter(|&i| redo[i]).collect();
+    let again = map_units(
+        comm,
+        redo_idx.len(),
+        |k| texel_direct(scene, a, redo_idx[k], side, &mut Rng::new(seed, stream, redo_idx[k] as u64)).0,
+        put,
+        |u| u.rgb(),
+    );
+    let mut out: Vec<[f32; 3]> = first.into_iter().map(|f| f.0).collect();
+    for (&i, e) in redo_idx.iter().zip(again) {
+        out[i] = e;
+    }
+    out
 }
 
 /// Texels around a penumbra texel found by the pilot of [`direct_irradiance`] that are estimated
@@ -418,6 +449,35 @@ mod tests {
             for &i in &differ {
                 let d = (luminance(full[i]) - luminance(adapt[i])).abs() as f64 / mean;
                 assert!(d < 0.1, "texel {i}: {:?} vs {:?}", full[i], adapt[i]);
+            }
+        }
+    }
+
+    /// The bits of a texel map.
+    fn bits(v: &[[f32; 3]]) -> Vec<u32> {
+        v.iter().flat_map(|e| e.map(f32::to_bits)).collect()
+    }
+
+    /// The texels split across 2 and 3 ranks (threads), with the adaptive pilot (its results and
+    /// the re-estimated penumbrae exchanged) and without: every rank gets the map of one process,
+    /// bit for bit.
+    #[test]
+    fn split_across_ranks_gives_the_same_bits() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox");
+        let mut desc = opal::scene::load::load_mitsuba_xml(&dir.join("scene.xml"), &[]).unwrap();
+        let k = desc.shapes.iter().position(|s| s.id == "floor").unwrap();
+        let a = atlas::build_atlas(&desc.shapes[k].mesh, 32, true).unwrap();
+        desc.shapes[k].mesh = a.mesh.clone();
+        let scene = Scene::build(&desc).unwrap();
+        for pilot in [0, 4] {
+            let want = direct_irradiance(&scene, &a, 16, pilot, 5, 9);
+            for n in [2, 3] {
+                let all = opal::dist::ThreadComm::run(n, |c| {
+                    direct_irradiance_split(&scene, &a, (16, pilot), 5, 9, c)
+                });
+                for got in all {
+                    assert_eq!(bits(&got), bits(&want), "pilot {pilot}, {n} ranks");
+                }
             }
         }
     }

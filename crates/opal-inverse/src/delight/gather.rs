@@ -35,7 +35,6 @@ use opal::math::{Frame, Vec2};
 use opal::sampling::Rng;
 use opal::sampling::square_to_cosine_hemisphere;
 use opal::scene::Scene;
-use rayon::prelude::*;
 
 /// Bilinear look-up of a texel map at `uv` (texel centres at `(i+½)/w`, clamped).
 fn bilinear(v: &[[f32; 3]], w: usize, h: usize, uv: Vec2) -> [f32; 3] {
@@ -70,7 +69,16 @@ fn atlas_uv(a: &Atlas, tri: usize, p: opal::math::Vec3) -> Vec2 {
 /// Initial indirect irradiance of every object by gathering the objects' luminance maps `L`
 /// (see the module documentation): `rays` stratified cosine-weighted rays (rounded down to a
 /// square) per gather texel. Returns one map per object (covered texels filled; gutters 0).
-pub fn gather_indirect(scene: &Scene, objects: &[ObjectResult], rays: u32, seed: u64) -> Vec<Vec<[f32; 3]>> {
+/// The gather texels are split across the processes of `comm` (gather texel `k` of an object on
+/// rank `k mod size`, seeded by its texel index; their values exchanged whole): every rank
+/// returns the maps one process computes, bit for bit.
+pub fn gather_indirect(
+    scene: &Scene,
+    objects: &[ObjectResult],
+    rays: u32,
+    seed: u64,
+    comm: &dyn opal::dist::Comm,
+) -> Vec<Vec<[f32; 3]>> {
     let side = (rays as f64).sqrt().floor().max(1.0) as u32;
     // shape → object
     let mut of_shape = vec![usize::MAX; scene.shapes.len()];
@@ -140,7 +148,8 @@ pub fn gather_indirect(scene: &Scene, objects: &[ObjectResult], rays: u32, seed:
             let grid: Vec<usize> = (0..w * h)
                 .filter(|&i| (i % w) % q == q / 2 && (i / w) % q == q / 2 && a.texel_tri[i] != NO_TRI)
                 .collect();
-            let vals: Vec<[f32; 3]> = grid.par_iter().map(|&i| sample(i)).collect();
+            let vals: Vec<[f32; 3]> =
+                opal::dist::map_units(comm, grid.len(), |k| sample(grid[k]), |e, p| p.f32s(e), |u| u.rgb());
             let mut v = vec![[0f32; 3]; w * h];
             let mut m = vec![[0f32; 3]; w * h];
             for (&i, e) in grid.iter().zip(&vals) {
@@ -180,7 +189,11 @@ mod tests {
 
     /// The six inward-facing faces of the cube [−1, 1]³, each its own shape, radiating
     /// `l(face)` uniformly: the gathered irradiance at every covered texel.
-    fn gather_in_cube(l: impl Fn(usize) -> [f32; 3], rays: u32) -> (Vec<ObjectResult>, Vec<Vec<[f32; 3]>>) {
+    fn gather_in_cube(
+        l: impl Fn(usize) -> [f32; 3],
+        rays: u32,
+        comm: &dyn opal::dist::Comm,
+    ) -> (Vec<ObjectResult>, Vec<Vec<[f32; 3]>>) {
         let mut desc = SceneDesc::default();
         for f in 0..6 {
             let (axis, s) = (f / 2, if f % 2 == 0 { -1.0f32 } else { 1.0 });
@@ -234,13 +247,35 @@ mod tests {
                 }
             })
             .collect();
-        let g = gather_indirect(&scene, &objects, rays, 7);
+        let g = gather_indirect(&scene, &objects, rays, 7, comm);
         for (o, m) in objects.iter().zip(&g) {
             for i in 0..m.len() {
                 assert_eq!(o.atlas.texel_tri[i] == NO_TRI, m[i] == [0.0; 3], "{} texel {i}", o.id);
             }
         }
         (objects, g)
+    }
+
+    /// The bits of a texel map.
+    fn bits(v: &[[f32; 3]]) -> Vec<u32> {
+        v.iter().flat_map(|e| e.map(f32::to_bits)).collect()
+    }
+
+    /// Gather texels split across 2 and 3 ranks (threads): every rank gets the maps of one
+    /// process, bit for bit (a dark face and 16 rays: the values differ from texel to texel).
+    #[test]
+    fn gather_split_across_ranks_gives_the_same_bits() {
+        let l = |k: usize| if k == 0 { [0.0; 3] } else { [0.2, 0.5, 1.0] };
+        let (_, want) = gather_in_cube(l, 16, &opal::dist::Solo);
+        let distinct: std::collections::HashSet<u32> = want[1].iter().map(|e| e[0].to_bits()).collect();
+        assert!(distinct.len() > 20, "{} distinct values", distinct.len());
+        for n in [2, 3] {
+            for got in opal::dist::ThreadComm::run(n, |c| gather_in_cube(l, 16, c).1) {
+                for (g, w) in got.iter().zip(&want) {
+                    assert_eq!(bits(g), bits(w), "{n} ranks");
+                }
+            }
+        }
     }
 
     /// Inside a closed box whose walls all radiate `L`, the irradiance is `πL` everywhere (every
@@ -250,7 +285,7 @@ mod tests {
     #[test]
     fn gather_matches_uniform_enclosure() {
         let l = [0.2f32, 0.5, 1.0];
-        let (_, g) = gather_in_cube(|_| l, 16);
+        let (_, g) = gather_in_cube(|_| l, 16, &opal::dist::Solo);
         for m in &g {
             for e in m.iter().filter(|e| **e != [0.0; 3]) {
                 for c in 0..3 {
@@ -259,7 +294,7 @@ mod tests {
             }
         }
         // face 0 (x = −1) dark: the centre of face 1 (x = +1) sees it with F = 0.2395
-        let (objects, g) = gather_in_cube(|k| if k == 0 { [0.0; 3] } else { l }, 4096);
+        let (objects, g) = gather_in_cube(|k| if k == 0 { [0.0; 3] } else { l }, 4096, &opal::dist::Solo);
         let a = &objects[1].atlas;
         let centre = (0..a.texel_p.len())
             .filter(|&i| a.texel_tri[i] != NO_TRI)

@@ -71,6 +71,7 @@ pub mod pose;
 mod result;
 mod settings;
 mod smooth;
+mod split;
 mod stages;
 pub mod superres;
 mod superres_diag;

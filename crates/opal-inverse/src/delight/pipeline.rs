@@ -93,11 +93,16 @@ pub fn delight(
     cancelled(s)?;
     // initial indirect irradiance: gathered from the luminance maps (or a share of `Ed`)
     let t0 = StageClock::start();
+    let solo = opal::dist::Solo;
+    let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
     let gathered =
-        (s.gather_rays > 0).then(|| gather::gather_indirect(&scene, &objects, s.gather_rays, s.seed));
-    for (j, o) in objects.iter_mut().enumerate() {
-        initial_kd(o, s.indirect_share, avg, gathered.as_ref().map(|g| g[j].as_slice()));
-    }
+        (s.gather_rays > 0).then(|| gather::gather_indirect(&scene, &objects, s.gather_rays, s.seed, comm));
+    // objects split across the processes (each object's albedo by one rank, then shared)
+    let g = gathered.as_ref();
+    let init = |j: usize, o: &mut super::ObjectResult| {
+        initial_kd(o, s.indirect_share, avg, g.map(|g| g[j].as_slice()))
+    };
+    super::split::per_object(comm, &mut objects, init, |_, _| {}, |_| ());
     drop(gathered);
     if s.gather_rays > 0 {
         timings.push("gather", t0.elapsed());

@@ -104,8 +104,9 @@ pub struct IterationStats {
     /// check of the two estimators; ≈ 1). Measured in the first iteration only (NaN after: the
     /// later passes do not deposit first hits).
     pub direct_ratio: Vec<f64>,
-    /// Seconds this process spent in the exchange between processes of this pass's light
-    /// tracing (sums over the ranks and waiting for them; 0 alone).
+    /// Seconds this process spent in this pass's exchanges between processes: the light
+    /// tracing's sums over the ranks, the per-object results and, in the first pass, the
+    /// super-resolved maps (transfer and waiting for the other ranks; 0 alone).
     pub comm_seconds: f64,
 }
 

@@ -99,10 +99,12 @@ pub struct DelightSettings {
     /// then returns [`opal::error::Error::Interrupted`], saying which iterations the checkpoint
     /// keeps.
     pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
-    /// Processes that share the light paths of every light-tracing pass
-    /// ([`opal::integrator::light_tracer::trace_split`]; the maps are the one-process maps bit
-    /// for bit, so every rank runs the same de-lighting). `None`: this process alone. The other
-    /// stages run in full on every rank.
+    /// Processes that share the work: the light paths of every light-tracing pass
+    /// ([`opal::integrator::light_tracer::trace_split`]), the texels of the direct irradiance
+    /// and of the gathering, and the objects of the super-resolution, of each pass's
+    /// post-processing and of the initial albedo; every rank ends each stage with the
+    /// one-process result bit for bit, so all ranks run the same de-lighting. `None`: this
+    /// process alone. Unwrapping, view gains and luminance maps run in full on every rank.
     pub comm: Option<std::sync::Arc<dyn opal::dist::Comm>>,
 }
 

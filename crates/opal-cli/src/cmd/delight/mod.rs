@@ -12,7 +12,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use contact::ContactAccumulator;
 use opal::image::Image;
-use opal::integrator::path::{PathSettings, render};
+use opal::integrator::path::{PathSettings, render, render_split};
 use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
 use opal_inverse::delight::downsample::downsample_view;
@@ -584,8 +584,10 @@ fn write_outputs(
             seed: a.seed ^ 0xDE11,
         };
         let shapes: Vec<usize> = r.objects.iter().map(|o| o.shape).collect();
+        // under MPI the rows of each re-render are split across the ranks (the same image)
+        let comm = crate::dist::comm_or_solo();
         for (vi, v) in views.iter().enumerate() {
-            let ro = render(&rscene, vi, &ps, &|| {});
+            let ro = render_split(&rscene, vi, &ps, &|| {}, None, &*comm)?;
             // previews of the photo and the re-render at one exposure, and their error map
             let exposure = html::preview_exposure(&v.image);
             exr(&out.join(format!("rerender/{}.exr", v.name)), &ro.image)?;

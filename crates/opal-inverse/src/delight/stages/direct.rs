@@ -1,5 +1,6 @@
 //! Stage 2 of [`delight`](crate::delight::delight): the direct irradiance `Ed` per texel of
-//! every object by light sampling ([`direct_irradiance`], seeded per object) and its scene
+//! every object by light sampling ([`direct_irradiance_split`], seeded per object and texel; the
+//! texels split across the processes of `DelightSettings::comm`) and its scene
 //! average over the covered surface (the initial indirect estimate of texels without direct
 //! light). Runs before the luminance stage. Tests: `tests/delight.rs`, the unit tests of
 //! `delight/direct.rs`.
@@ -8,7 +9,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::delight::atlas::NO_TRI;
-use crate::delight::{DelightSettings, ObjectResult, direct_irradiance};
+use crate::delight::direct::direct_irradiance_split;
+use crate::delight::{DelightSettings, ObjectResult};
 use opal::scene::Scene;
 
 /// Fills `o.ed` of every object; returns the area-weighted mean direct irradiance over the
@@ -18,9 +20,11 @@ pub(in crate::delight) fn direct_stage(
     objects: &mut [ObjectResult],
     s: &DelightSettings,
 ) -> [f32; 3] {
+    let solo = opal::dist::Solo;
+    let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
     for (j, o) in objects.iter_mut().enumerate() {
-        o.ed =
-            direct_irradiance(scene, &o.atlas, s.direct_samples, s.direct_pilot, s.seed, 0xED00 + j as u64);
+        let samples = (s.direct_samples, s.direct_pilot);
+        o.ed = direct_irradiance_split(scene, &o.atlas, samples, s.seed, 0xED00 + j as u64, comm);
     }
     scene_average(objects)
 }

@@ -18,7 +18,7 @@ use crate::delight::timing::{StageClock, Timings};
 use crate::delight::views::{PureBuffer, View};
 use crate::delight::{
     DelightSettings, IterationStats, LightPaths, ObjectResult, UpdateRule, luminance, noise, reached_texels,
-    recovered_desc, smooth_in_charts_masked, superres,
+    recovered_desc, smooth_in_charts_masked, split, superres,
 };
 use opal::error::{Error, Result};
 use opal::integrator::light_tracer::{self, IrradianceMaps, IrradianceTarget, LightTraceSettings};
@@ -54,6 +54,32 @@ struct ObjectPass {
     noise: f64,
     /// Its residuals, corrected for the smoothing window (pooled over the objects).
     residuals: Vec<f64>,
+}
+
+impl ObjectPass {
+    /// Writes the pass's results exactly (for the other processes).
+    fn put(&self, p: &mut opal::dist::Packer) {
+        for x in [self.max, self.sum, self.direct_ratio, self.noise] {
+            p.f64(x);
+        }
+        p.u64(self.count as u64);
+        p.u64(self.outliers as u64);
+        p.u64(self.rel.len() as u64);
+        p.f32s(&self.rel);
+        p.u64(self.residuals.len() as u64);
+        self.residuals.iter().for_each(|&x| p.f64(x));
+    }
+    /// Reads what [`ObjectPass::put`] wrote.
+    fn get(u: &mut opal::dist::Unpacker) -> ObjectPass {
+        let [max, sum, direct_ratio, noise] = std::array::from_fn(|_| u.f64());
+        let count = u.u64() as usize;
+        let outliers = u.u64() as usize;
+        let n = u.u64() as usize;
+        let rel = (0..n).map(|_| u.f32()).collect();
+        let n = u.u64() as usize;
+        let residuals = (0..n).map(|_| u.f64()).collect();
+        ObjectPass { max, sum, count, outliers, rel, direct_ratio, noise, residuals }
+    }
 }
 
 /// Runs the light-tracing iterations on `objects` (luminance, direct irradiance and initial
@@ -149,7 +175,6 @@ pub(in crate::delight) fn iterate(
         else {
             return Err(Error::Interrupted { kept: kept(s, k - 1) });
         };
-        let comm_seconds = comm.comm_seconds() - comm0;
         let (w, c) = c0.elapsed();
         lt_wall += w;
         lt_cpu += c;
@@ -163,14 +188,13 @@ pub(in crate::delight) fn iterate(
         let mut error_maps = Vec::new();
         let mut direct_ratio = Vec::new();
         let (mut gmax, mut gsum, mut gcount) = (0f64, 0f64, 0usize);
-        // objects in parallel (smoothing, error statistics, update and inpainting of each)
-        let post: Vec<ObjectPass> = objects
-            .par_iter_mut()
-            .map(|o| {
-                let m = out.maps[o.shape].as_ref().expect("target");
-                object_pass(o, m, k, s, log)
-            })
-            .collect();
+        // objects in parallel (smoothing, error statistics, update and inpainting of each); under
+        // several processes each object on one rank, its results then shared
+        let pass = |_: usize, o: &mut ObjectResult| {
+            let m = out.maps[o.shape].as_ref().expect("target");
+            object_pass(o, m, k, s, log)
+        };
+        let post: Vec<ObjectPass> = split::per_object(comm, objects, pass, ObjectPass::put, ObjectPass::get);
         let mut texel_noise = Vec::new();
         let mut all_residuals = Vec::new();
         for p in post {
@@ -210,6 +234,8 @@ pub(in crate::delight) fn iterate(
             ));
         }
         fill_unseen(objects);
+        // this pass's exchanges: the tracer's maps, and the super-resolved maps after the first
+        let comm_seconds = comm.comm_seconds() - comm0;
         let st = IterationStats {
             iteration: k,
             max_rel_error: gmax,
@@ -411,7 +437,9 @@ fn debug_print(o: &ObjectResult, log: &(dyn Fn(&str) + Sync)) {
 /// the result of each object does not depend on the thread count). The shading of the prior is
 /// `Ed + Ei` with `Ei` smoothed further over resolution/16 texels (low-frequency; its
 /// Monte-Carlo noise would otherwise enter the prior's albedo estimate), or the map of
-/// [`DebugSettings::shading`](crate::delight::DebugSettings::shading).
+/// [`DebugSettings::shading`](crate::delight::DebugSettings::shading). Under several processes
+/// each object is solved by one rank (balanced by texel and observing-pixel counts,
+/// [`opal::dist::assign_by_cost`]), which sends the object's new maps whole to the others.
 fn superres_pass(
     inp: &Inputs,
     objects: &mut [ObjectResult],
@@ -420,9 +448,29 @@ fn superres_pass(
     sr: &superres::SrSettings,
 ) {
     let (scene, s, log) = (inp.scene, inp.s, inp.log);
+    let solo = opal::dist::Solo;
+    let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
+    let owner = if comm.size() > 1 {
+        // cost estimate: unknowns (texels) plus observations (pure pixels of the object)
+        let costs: Vec<f64> = objects
+            .iter()
+            .map(|o| {
+                let px: usize =
+                    pure.iter().map(|p| p.covered.iter().filter(|&&k| k == o.shape as u32).count()).sum();
+                (o.atlas.width * o.atlas.height + px) as f64
+            })
+            .collect();
+        opal::dist::assign_by_cost(&costs, comm.size())
+    } else {
+        vec![0; objects.len()]
+    };
     let msgs: Vec<Option<String>> = objects
         .par_iter_mut()
-        .map(|o| {
+        .enumerate()
+        .map(|(j, o)| {
+            if owner[j] != comm.rank() {
+                return None;
+            }
             let to = std::time::Instant::now();
             let reach = reached_texels(&o.observed, &o.ed, &o.ei);
             let ei = smooth_in_charts_masked(&o.ei, &o.atlas, (o.atlas.width / 16).max(1), &reach);
@@ -458,5 +506,52 @@ fn superres_pass(
             ))
         })
         .collect();
+    let msgs = if comm.size() > 1 { exchange_superres(comm, objects, &owner, msgs) } else { msgs };
     msgs.iter().flatten().for_each(|m| log(m));
+}
+
+/// The maps [`superres_pass`] changes (`l`, `observed`, `seen_fraction`, `kd`, `ei`, `clamped`)
+/// and the log line of each object, sent by its owner rank to every other; returns every
+/// object's log line (in object order).
+fn exchange_superres(
+    comm: &dyn opal::dist::Comm,
+    objects: &mut [ObjectResult],
+    owner: &[usize],
+    msgs: Vec<Option<String>>,
+) -> Vec<Option<String>> {
+    let mut p = opal::dist::Packer::default();
+    for (j, o) in objects.iter().enumerate().filter(|(j, _)| owner[*j] == comm.rank()) {
+        p.u8(msgs[j].is_some() as u8);
+        let Some(m) = &msgs[j] else { continue };
+        p.str(m);
+        for i in 0..o.l.len() {
+            p.f32s(&o.l[i]);
+            p.f32s(&o.kd[i]);
+            p.f32s(&o.ei[i]);
+            p.u8(o.observed[i] as u8);
+        }
+        p.f64(o.seen_fraction);
+        p.u64(o.clamped as u64);
+    }
+    let all = comm.all_gather_bytes(&p.0);
+    let mut readers: Vec<opal::dist::Unpacker> = all.iter().map(|b| opal::dist::Unpacker(b)).collect();
+    let mut out = Vec::with_capacity(objects.len());
+    for (j, o) in objects.iter_mut().enumerate() {
+        let u = &mut readers[owner[j]];
+        if u.u8() == 0 {
+            out.push(None);
+            continue;
+        }
+        out.push(Some(u.str()));
+        for i in 0..o.l.len() {
+            o.l[i] = u.rgb();
+            o.kd[i] = u.rgb();
+            o.ei[i] = u.rgb();
+            o.observed[i] = u.u8() != 0;
+        }
+        o.seen_fraction = u.f64();
+        o.clamped = u.u64() as usize;
+    }
+    assert!(readers.iter().all(|r| r.is_empty()), "a rank sent the maps of another object");
+    out
 }
