@@ -62,8 +62,8 @@ use opal::scene::desc::{BsdfDesc, SceneDesc, TextureDesc};
 use opal_inverse::delight::pose::{camera_with, compose};
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
-    DelightResult, DelightSettings, LightPaths, PoseRefinement, PoseSettings, ViewGainMode,
-    ViewGainSettings, delight,
+    DelightResult, DelightSettings, LightPaths, PoseRefinement, PoseSettings, ViewGainMode, ViewGainSettings,
+    delight,
 };
 use std::path::PathBuf;
 

@@ -29,6 +29,9 @@ fn is_diffuse(m: &Material) -> bool {
     matches!(m, Material::Diffuse { .. })
 }
 
+/// Shapes left out of the recovery: (id, reason).
+pub(in crate::delight) type LeftOut = Vec<(String, String)>;
+
 /// The model's name of a non-diffuse material (`RoughConductor`, `RoughPlastic`, ...).
 fn material_kind(m: &Material) -> String {
     let b = match m {
@@ -62,7 +65,7 @@ fn left_out_reason(scene: &Scene, k: usize) -> String {
 pub(in crate::delight) fn select_objects(
     scene: &Scene,
     objects: Option<&[String]>,
-) -> Result<(Vec<usize>, Vec<(String, String)>)> {
+) -> Result<(Vec<usize>, LeftOut)> {
     let selected: Vec<usize> = match objects {
         Some(names) => {
             let mut v = Vec::new();
