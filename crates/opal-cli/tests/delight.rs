@@ -111,6 +111,7 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "iterations",
         "objects",
         "skipped",
+        "not_recovered",
         "warnings",
         "regions",
         "max_region_rel_error_luminance",

@@ -53,7 +53,10 @@ pub fn delight(
     let views: &[View] = coarse.as_deref().unwrap_or(views);
     let inp = Inputs { desc, scene: &scene, s, log };
     // 1. unwrap
-    let selected = unwrap::select_objects(&scene, s.objects.as_deref())?;
+    let (selected, not_recovered) = unwrap::select_objects(&scene, s.objects.as_deref())?;
+    for (id, why) in &not_recovered {
+        log(&format!("not recovered: {id} ({why})"));
+    }
     let t0 = StageClock::start();
     let (mut objects, skipped) = unwrap::unwrap_objects(&inp, &selected, views, &mut warnings);
     if objects.is_empty() {
@@ -113,7 +116,11 @@ pub fn delight(
     let iterated = iterate::iterate(&inp, &mut objects, views, &pure, &mut warnings, &mut timings)?;
     // 6. outputs
     debug_dump(&objects, "final", s.debug.dump_dir.as_deref());
-    Ok(assemble(Finished { objects, skipped, iterated, view_gains, poses, warnings }, timings, t_all))
+    Ok(assemble(
+        Finished { objects, skipped, not_recovered, iterated, view_gains, poses, warnings },
+        timings,
+        t_all,
+    ))
 }
 
 /// `Err(Interrupted)` once `s.cancel` is set (a stage boundary before the iterations: nothing

@@ -117,6 +117,10 @@ pub struct DelightResult {
     pub objects: Vec<ObjectResult>,
     /// Objects that could not be recovered: (id, reason).
     pub skipped: Vec<(String, String)>,
+    /// Shapes left out of the recovery and why (id, reason): emitters, shapes with a
+    /// non-diffuse material (kept as given, part of the light transport), and with named
+    /// objects the shapes not named.
+    pub not_recovered: Vec<(String, String)>,
     /// Iterations.
     pub iterations: Vec<IterationStats>,
     /// The error fell below the tolerance.

@@ -363,6 +363,19 @@ fn objects_section(s: &mut String, r: &Value) {
         }
         s.push_str("</div>");
     }
+    let left_out = r["not_recovered"].as_array().map(Vec::as_slice).unwrap_or_default();
+    if !left_out.is_empty() {
+        s.push_str("<h3>Not recovered</h3><ul>");
+        for o in left_out {
+            let _ = write!(
+                s,
+                "<li>{}: {}</li>",
+                esc(o["id"].as_str().unwrap_or("")),
+                esc(o["reason"].as_str().unwrap_or(""))
+            );
+        }
+        s.push_str("</ul>");
+    }
 }
 
 /// The region table (photo vs re-render per view and object), folded.

@@ -713,6 +713,7 @@ fn write_outputs(
         "iterations": its,
         "objects": objs,
         "skipped": r.skipped.iter().map(|(id, why)| json!({"id": id, "reason": why})).collect::<Vec<_>>(),
+        "not_recovered": r.not_recovered.iter().map(|(id, why)| json!({"id": id, "reason": why})).collect::<Vec<_>>(),
         "warnings": r.warnings.iter().chain(vwarn).collect::<Vec<_>>(),
         "regions": regions,
         "max_region_rel_error_luminance": max_region_err,

@@ -31,6 +31,8 @@ pub(in crate::delight) struct Finished {
     pub objects: Vec<ObjectResult>,
     /// Skipped objects: (id, reason).
     pub skipped: Vec<(String, String)>,
+    /// Shapes left out of the recovery: (id, reason).
+    pub not_recovered: Vec<(String, String)>,
     /// The iterations' statistics.
     pub iterated: Iterated,
     /// Estimated per-view gains.
@@ -49,6 +51,7 @@ pub(in crate::delight) fn assemble(f: Finished, mut timings: Timings, t_all: Sta
     DelightResult {
         objects: f.objects,
         skipped: f.skipped,
+        not_recovered: f.not_recovered,
         iterations,
         converged,
         view_gains: f.view_gains,

@@ -29,10 +29,43 @@ fn is_diffuse(m: &Material) -> bool {
     matches!(m, Material::Diffuse { .. })
 }
 
+/// Shapes left out of the recovery: (id, reason).
+pub(in crate::delight) type LeftOut = Vec<(String, String)>;
+
+/// The model's name of a non-diffuse material (`RoughConductor`, `RoughPlastic`, ...).
+fn material_kind(m: &Material) -> String {
+    let b = match m {
+        Material::Diffuse { .. } => return "Diffuse".into(),
+        Material::Coated { bxdf, .. } | Material::Model { bxdf, .. } => bxdf,
+    };
+    let d = format!("{b:?}");
+    d.split(['(', ' ', '{']).next().unwrap_or("").to_string()
+}
+
+/// Why shape `k` is not recovered when it is not selected: an emitter, a non-diffuse material
+/// (kept as given, part of the light transport), or (with named objects) not named.
+fn left_out_reason(scene: &Scene, k: usize) -> String {
+    let sh = &scene.shapes[k];
+    if sh.emission.is_some() {
+        "emitter".into()
+    } else if !is_diffuse(&sh.material) {
+        format!(
+            "non-diffuse material ({}): kept as given in the light transport",
+            material_kind(&sh.material)
+        )
+    } else {
+        "not selected".into()
+    }
+}
+
 /// Shape indices to recover: the shapes named in `objects` (errors for unknown ids, emitters and
-/// non-diffuse shapes), or every non-emitting diffuse shape. Non-diffuse shapes keep their
-/// material and take part in the light transport.
-pub(in crate::delight) fn select_objects(scene: &Scene, objects: Option<&[String]>) -> Result<Vec<usize>> {
+/// non-diffuse shapes), or every non-emitting diffuse shape; and the shapes left out with the
+/// reason (id, reason). Non-diffuse shapes keep their material and take part in the light
+/// transport.
+pub(in crate::delight) fn select_objects(
+    scene: &Scene,
+    objects: Option<&[String]>,
+) -> Result<(Vec<usize>, LeftOut)> {
     let selected: Vec<usize> = match objects {
         Some(names) => {
             let mut v = Vec::new();
@@ -67,7 +100,11 @@ pub(in crate::delight) fn select_objects(scene: &Scene, objects: Option<&[String
     if selected.is_empty() {
         return Err(Error::invalid("scene", "no non-emitting diffuse shape to recover"));
     }
-    Ok(selected)
+    let left_out = (0..scene.shapes.len())
+        .filter(|k| !selected.contains(k))
+        .map(|k| (scene.shapes[k].id.clone(), left_out_reason(scene, k)))
+        .collect();
+    Ok((selected, left_out))
 }
 
 /// Atlases of the `selected` shapes: the recovered objects (maps zeroed) and the skipped ones
@@ -186,8 +223,15 @@ mod tests {
             ..Default::default()
         };
         let scene = Scene::build(&desc).unwrap();
-        assert_eq!(select_objects(&scene, None).unwrap(), vec![0, 2]);
-        assert_eq!(select_objects(&scene, Some(&["back".to_string()])).unwrap(), vec![2]);
+        let (sel, left_out) = select_objects(&scene, None).unwrap();
+        assert_eq!(sel, vec![0, 2]);
+        assert_eq!(left_out.len(), 1);
+        assert_eq!(left_out[0].0, "metal");
+        assert!(left_out[0].1.starts_with("non-diffuse material (Phong)"), "{left_out:?}");
+        let (sel, left_out) = select_objects(&scene, Some(&["back".to_string()])).unwrap();
+        assert_eq!(sel, vec![2]);
+        assert_eq!(left_out[0], ("wall".to_string(), "not selected".to_string()));
+        assert_eq!(left_out[1].0, "metal");
         let err = select_objects(&scene, Some(&["metal".to_string()])).unwrap_err().to_string();
         assert!(err.contains("not diffuse"), "{err}");
     }
