@@ -22,8 +22,11 @@ Writes into OUT:
   truth.json          true albedos, lights, cameras, noise summary, timings
 
 Usage: bench/.venv/bin/python bench/scripts/room_multiview.py OUT [--spp 1024] [--pass-spp 64]
-       [--variant llvm_ad_rgb] [--scale 1.0]
-(--scale multiplies the view resolutions, e.g. 0.5 for a quick look). The de-lighting
+       [--variant llvm_ad_rgb] [--scale 1.0] [--ring N --width W --height H]
+(--scale multiplies the view resolutions, e.g. 0.5 for a quick look; --ring N replaces the six
+cameras by N cameras of W × H on two rings inside the room, looking inwards — the
+photo-resolution data set of issue 23 is `--ring 24 --width 4000 --height 3000 --spp 8
+--pass-spp 4`). The de-lighting
 acceptance on it: `OPAL_ROOM_DIR=OUT cargo test -p opal-inverse --test delight_room --
 --ignored --nocapture` (crates/opal-inverse/tests/delight_room.rs).
 """
@@ -65,6 +68,19 @@ CAMERAS = [
     ((-1.4, 1.25, -0.95), (0.6, 0.2, 0.3), 55.0, 240, 320),
     ((0.2, 1.3, 0.2), (0.1, 0.0, -0.5), 75.0, 256, 192),
 ]
+
+
+def ring_cameras(n, width, height):
+    """N cameras on two rings (heights 0.55 and 1.15 m) on an ellipse inside the room, each looking
+    across the room at a point near its centre; the horizontal field of view is 65°."""
+    cams = []
+    for k in range(n):
+        a = 2.0 * math.pi * (k + 0.5 * (k % 2)) / n
+        y = 0.55 if k % 2 == 0 else 1.15
+        o = (1.35 * math.cos(a), y, 0.85 * math.sin(a))
+        t = (-0.35 * math.cos(a + 0.6), 0.45 + 0.1 * math.sin(3 * a), -0.25 * math.sin(a + 0.6))
+        cams.append((o, t, 65.0, width, height))
+    return cams
 
 
 def find_libllvm():
@@ -344,6 +360,9 @@ def main():
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--max-depth", type=int, default=-1)
+    ap.add_argument("--ring", type=int, default=0)
+    ap.add_argument("--width", type=int, default=4000)
+    ap.add_argument("--height", type=int, default=3000)
     a = ap.parse_args()
     if a.variant.startswith("llvm") and "DRJIT_LIBLLVM_PATH" not in os.environ:
         lib = find_libllvm()
@@ -383,7 +402,8 @@ def main():
                         "n_triangles": write_obj(out / "meshes" / f"{name}.obj", name, verts, faces,
                                                  None, normals)})
     cams = []
-    for k, (o, t, fov, w, h) in enumerate(CAMERAS):
+    layout = ring_cameras(a.ring, a.width, a.height) if a.ring > 0 else CAMERAS
+    for k, (o, t, fov, w, h) in enumerate(layout):
         cams.append({"index": k, "origin": o, "target": t, "fov_deg": fov,
                      "width": max(8, round(w * a.scale)), "height": max(8, round(h * a.scale)),
                      "to_world": look_at(o, t).tolist(), "image": f"views/view_{k:02d}.exr"})
