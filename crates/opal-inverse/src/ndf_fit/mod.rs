@@ -69,7 +69,9 @@ mod optimise;
 mod scale;
 mod selection;
 
-pub use auto::{Candidate, DOTTED_TRIGGER, Decision, FitOptions, FitReport, fit};
+pub use auto::{
+    Candidate, DEFAULT_HYBRID_NODES, DOTTED_TRIGGER, Decision, FitOptions, FitReport, HYBRID_TRIGGER, fit,
+};
 pub use model::{DOTTED_COVERAGE_START, Family, Model, STUDENT_GAMMA_START, hybrid_spacing};
 pub use nodes::with_node;
 pub use optimise::{FamilyFit, fit_families};
