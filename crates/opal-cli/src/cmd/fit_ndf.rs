@@ -40,7 +40,7 @@ pub struct FitNdfArgs {
     /// hybrid (the auto winner plus tabulated nodes of D, each where the residual is largest)
     /// or dotted (GGX or Beckmann dots covering a fitted fraction of a polished land; auto
     /// tries it when the single NDFs miss the data by more than twice the noise; auto adds
-    /// hybrid nodes when the kept single-NDF or dotted model still misses by more than twice
+    /// hybrid nodes when the kept single-NDF or dotted model still misses by more than 1.5 times
     /// the noise, each node kept only when the selection rule prefers it).
     #[arg(long, default_value = "auto")]
     pub family: String,
@@ -447,7 +447,8 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "rms": ev.rms,
         "noise": ev.noise,
         "rms_over_noise": ev.rms / ev.noise,
-        "scale_check": ev.scale_check.map(|c| serde_json::json!({"k": c.k, "stderr": c.stderr, "mismatch": c.mismatch})),
+        "scale_check": ev.scale_check.map(|c| serde_json::json!({"k": c.k, "stderr": c.stderr, "mismatch": c.mismatch,
+            "scaled_rms_over_noise": c.scaled_ratio})),
         "rms_initial": init.rms,
         "rms_per_incidence": per,
         "chi2": ev.chi2,
@@ -693,7 +694,7 @@ pub fn run(a: FitNdfArgs) -> Result<i32> {
             super::scale_advice::scale_advice(
                 sc["k"].as_f64().unwrap_or(f64::NAN),
                 sc["stderr"].as_f64().unwrap_or(f64::NAN),
-                o.json["rms_over_noise"].as_f64().unwrap_or(f64::NAN)
+                sc["scaled_rms_over_noise"].as_f64().unwrap_or(f64::NAN)
             )
         );
     }
