@@ -39,14 +39,17 @@ pub struct FitNdfArgs {
     /// the noise, see docs/fit-ndf.md), beckmann, ggx, student (Student-t: α and tail γ) or
     /// hybrid (the auto winner plus tabulated nodes of D, each where the residual is largest)
     /// or dotted (GGX or Beckmann dots covering a fitted fraction of a polished land; auto
-    /// tries it when the single NDFs miss the data by more than twice the noise).
+    /// tries it when the single NDFs miss the data by more than twice the noise; auto adds
+    /// hybrid nodes when the kept single-NDF or dotted model still misses by more than 1.5 times
+    /// the noise, each node kept only when the selection rule prefers it).
     #[arg(long, default_value = "auto")]
     pub family: String,
     /// Also fit a peak shift δ (the NDF peaks on the cone θm = δ) in every family.
     #[arg(long)]
     pub shift: bool,
-    /// Maximum number of tabulated nodes of `--family hybrid`.
-    #[arg(long, default_value_t = 4)]
+    /// Maximum number of tabulated nodes of `--family hybrid` and of auto's hybrid step (0:
+    /// auto never tries hybrid).
+    #[arg(long, default_value_t = opal_inverse::ndf_fit::DEFAULT_HYBRID_NODES)]
     pub hybrid_nodes: usize,
     /// Photons per incidence of the coarse optimisation stage (0: no coarse stage; default
     /// photons/8 when ≥ 10 000).
@@ -444,7 +447,8 @@ pub fn fit_and_write(a: &FitNdfArgs, out: &Path) -> Result<FitOutcome> {
         "rms": ev.rms,
         "noise": ev.noise,
         "rms_over_noise": ev.rms / ev.noise,
-        "scale_check": ev.scale_check.map(|c| serde_json::json!({"k": c.k, "stderr": c.stderr, "mismatch": c.mismatch})),
+        "scale_check": ev.scale_check.map(|c| serde_json::json!({"k": c.k, "stderr": c.stderr, "mismatch": c.mismatch,
+            "scaled_rms_over_noise": c.scaled_ratio})),
         "rms_initial": init.rms,
         "rms_per_incidence": per,
         "chi2": ev.chi2,
@@ -686,9 +690,12 @@ pub fn run(a: FitNdfArgs) -> Result<i32> {
     let sc = &o.json["scale_check"];
     if sc["mismatch"].as_bool() == Some(true) {
         eprintln!(
-            "fit-ndf: warning: measured ≈ {:.4} ± {:.4} × simulated: the absolute values' calibration does not match (try --scale global)",
-            sc["k"].as_f64().unwrap_or(f64::NAN),
-            sc["stderr"].as_f64().unwrap_or(f64::NAN)
+            "fit-ndf: warning: {}",
+            super::scale_advice::scale_advice(
+                sc["k"].as_f64().unwrap_or(f64::NAN),
+                sc["stderr"].as_f64().unwrap_or(f64::NAN),
+                sc["scaled_rms_over_noise"].as_f64().unwrap_or(f64::NAN)
+            )
         );
     }
     if let Some(fs) = o.json["scale"]["factors"].as_array().filter(|f| !f.is_empty()) {

@@ -7,3 +7,4 @@ pub mod face_render;
 pub mod fit_ndf;
 pub mod gonio;
 pub mod render;
+pub mod scale_advice;

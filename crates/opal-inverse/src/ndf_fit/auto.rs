@@ -1,8 +1,9 @@
 //! The whole fit ([`fit`]): the one-parameter families, Student-t from the better of them,
 //! the dotted model (GGX or Beckmann dots on a polished land, each from a coarse grid start,
-//! the better at the check seed kept), hybrid nodes on top of the kept analytic model (each
-//! where the residual is largest, `nodes`; then one joint refit of α and the multipliers),
-//! every candidate re-simulated with the
+//! the better at the check seed kept), hybrid nodes on top of the kept model (each where the
+//! residual is largest, `nodes`; then one joint refit of α and the multipliers; `auto` tries
+//! them when the kept single-NDF or dotted model still misses the data by more than
+//! [`HYBRID_TRIGGER`] × the noise), every candidate re-simulated with the
 //! independent check seed and kept or rejected by the selection rule; what it fits
 //! ([`FitOptions`]) and what it found ([`FitReport`]).
 //!
@@ -15,11 +16,24 @@ use opal::bsdf::microfacet::Ndfs;
 /// times its noise.
 pub const DOTTED_TRIGGER: f64 = 2.0;
 
+/// `auto` adds hybrid nodes (up to [`FitOptions::hybrid_nodes`]) to the kept model when, after
+/// the single-NDF and dotted models, its check rms still exceeds this many times its noise:
+/// the acceptance bound of a fit (rms/noise ≤ 1.5), so a model that fits is never given a
+/// table. Lower than [`DOTTED_TRIGGER`] because a shape error the families cannot follow
+/// shows less in the RMS *relative* residual than a missing spike or lobe: the dim points'
+/// large relative noise dilutes it (a GGX α 0.3 face with a hole at θm = 0, `auto_picks_hybrid`:
+/// the best single NDF at rms/noise 1.69, χ² 6210).
+pub const HYBRID_TRIGGER: f64 = 1.5;
+
+/// Default of [`FitOptions::hybrid_nodes`] (also the CLI's `--hybrid-nodes`).
+pub const DEFAULT_HYBRID_NODES: usize = 4;
+
 /// What [`fit`] fits.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct FitOptions {
-    /// `None` = auto (GGX, Beckmann, Student-t, and dotted when they miss the data by more than
-    /// [`DOTTED_TRIGGER`] × the noise; the selection rule keeps one);
+    /// `None` = auto (GGX, Beckmann, Student-t, dotted when they miss the data by more than
+    /// [`DOTTED_TRIGGER`] × the noise, hybrid nodes on the kept model when it still misses by
+    /// more than [`HYBRID_TRIGGER`] × the noise; the selection rule keeps one);
     /// `Some(Ggx | Beckmann)` = that family only; `Some(Student)` = GGX and Beckmann, then
     /// Student-t from the better one (kept whatever the rule says); `Some(Hybrid)` = auto
     /// without dotted, then hybrid nodes; `Some(Dotted)` = auto, the dotted model kept whatever
@@ -27,8 +41,15 @@ pub struct FitOptions {
     pub family: Option<Family>,
     /// Fit a peak shift δ in every family.
     pub shift: bool,
-    /// Maximum number of hybrid nodes (free table values), `Some(Hybrid)` only.
+    /// Maximum number of hybrid nodes (free table values) of `Some(Hybrid)` and of `auto`'s
+    /// hybrid step (0: `auto` never tries hybrid). Default [`DEFAULT_HYBRID_NODES`].
     pub hybrid_nodes: usize,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions { family: None, shift: false, hybrid_nodes: DEFAULT_HYBRID_NODES }
+    }
 }
 
 /// One fitted candidate model and its re-simulation with the independent check seed.
@@ -80,7 +101,8 @@ impl FitReport {
 }
 
 /// Fits the NDF: the one-parameter families (Brent, or Nelder–Mead with `shift`), the
-/// Student-t family from the better of them, hybrid nodes on top of the kept analytic model;
+/// Student-t family from the better of them, the dotted model, hybrid nodes on top of the kept
+/// model (see [`FitOptions::family`] for which of them each option tries);
 /// every candidate is re-simulated with the independent check seed and the richer model is
 /// kept only when [`Problem::compare`] accepts it.
 pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
@@ -153,7 +175,15 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
             best = di;
         }
     }
-    if opts.family == Some(Family::Hybrid) {
+    // auto adds hybrid nodes when the kept model (single-NDF or dotted) still misses the data
+    // by more than the acceptance bound: a shape no family describes (a bump or shoulder in D); the
+    // node-step rule then keeps each node only when it pays, so a misfit the table cannot mend
+    // (spike + lobe without the dotted model) ends with the model it started from
+    let misfit = cands[best].check.rms > HYBRID_TRIGGER * cands[best].check.noise;
+    let auto_hybrid = opts.family.is_none() && misfit && opts.hybrid_nodes > 0;
+    let hybrid_seed = best;
+    let mut refit_kept = false;
+    if opts.family == Some(Family::Hybrid) || auto_hybrid {
         // each node where the kept model misses the data most (in θm, at the check seed; see
         // `nodes`), on a grid of spacing h
         let h = hybrid_spacing(&cands[best].fit.model);
@@ -190,6 +220,7 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
             decisions.push(Decision { simple: best, rich: ri, comparison });
             if accepted {
                 best = ri;
+                refit_kept = true;
             }
         }
     }
@@ -197,8 +228,13 @@ pub fn fit(problem: &Problem, opts: &FitOptions) -> opal::Result<FitReport> {
     // a kept dotted model needs its own convergence only: the single-NDF fits it replaced miss
     // the data by more than twice the noise (hence the dotted step), and on a spike + lobe their
     // one-parameter searches often end at the iteration limit without mattering
+    // a hybrid kept by `auto` likewise replaced models that miss the data by more than the
+    // acceptance bound: its own fit counts, and the model it started from unless the final joint refit
+    // (α with the nodes) is the kept one
     let converged = if cands[best].fit.model.family == Family::Dotted {
         cands[best].fit.converged
+    } else if auto_hybrid && cands[best].fit.model.family == Family::Hybrid {
+        cands[best].fit.converged && (refit_kept || cands[hybrid_seed].fit.converged)
     } else {
         cands.iter().enumerate().all(|(i, c)| {
             c.fit.converged || (i != best && matches!(c.fit.model.family, Family::Hybrid | Family::Dotted))

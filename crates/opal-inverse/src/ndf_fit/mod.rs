@@ -69,7 +69,9 @@ mod optimise;
 mod scale;
 mod selection;
 
-pub use auto::{Candidate, DOTTED_TRIGGER, Decision, FitOptions, FitReport, fit};
+pub use auto::{
+    Candidate, DEFAULT_HYBRID_NODES, DOTTED_TRIGGER, Decision, FitOptions, FitReport, HYBRID_TRIGGER, fit,
+};
 pub use model::{DOTTED_COVERAGE_START, Family, Model, STUDENT_GAMMA_START, hybrid_spacing};
 pub use nodes::with_node;
 pub use optimise::{FamilyFit, fit_families};
@@ -250,13 +252,23 @@ pub struct ScaleCheck {
     pub stderr: f64,
     /// `|k − 1| > 3 σk` and `|k − 1| > 2 %`: the measurement's scale does not match.
     pub mismatch: bool,
+    /// rms/noise of the fit with the free scale: √(Σ ((k s − m)/m)² / Σ (k² σs² + σm²)/m²)
+    /// over the same points. Near 1 when the shape fits and only the scale is off (a
+    /// calibration error); well above 1 when the model's shape is wrong, whatever k says.
+    pub scaled_ratio: f64,
 }
+
+/// Largest [`ScaleCheck::scaled_ratio`] at which a flagged check is put down to the
+/// calibration (the model with the free factor fits within the acceptance bound of 1.5 × the
+/// noise); above it the shape does not match and k follows the wrong shape.
+pub const SCALED_FIT_MAX_RATIO: f64 = 1.5;
 
 impl ScaleCheck {
     /// The check from (measured, its standard error, simulated, its standard error) points.
     pub fn from_points(points: impl IntoIterator<Item = (f64, f64, f64, f64)>) -> Option<ScaleCheck> {
+        let points: Vec<(f64, f64, f64, f64)> = points.into_iter().collect();
         let (mut ms, mut ss) = (0.0, 0.0);
-        for (m, sm, s, sds) in points {
+        for &(m, sm, s, sds) in &points {
             let v = sm * sm + sds * sds;
             if v > 0.0 && v.is_finite() {
                 ms += m * s / v;
@@ -270,7 +282,13 @@ impl ScaleCheck {
         let k = ms / ss;
         let stderr = ss.sqrt().recip();
         let d = (k - 1.0).abs();
-        Some(ScaleCheck { k, stderr, mismatch: d > 3.0 * stderr && d > 0.02 })
+        let (mut e2, mut n2) = (0.0, 0.0);
+        for &(m, sm, s, sds) in points.iter().filter(|p| p.0 > 0.0) {
+            e2 += ((k * s - m) / m).powi(2);
+            n2 += (k * k * sds * sds + sm * sm) / (m * m);
+        }
+        let scaled_ratio = if n2 > 0.0 { (e2 / n2).sqrt() } else { f64::NAN };
+        Some(ScaleCheck { k, stderr, mismatch: d > 3.0 * stderr && d > 0.02, scaled_ratio })
     }
 }
 
