@@ -194,7 +194,7 @@ mod tests {
         let want_state = state(&want_objects);
         assert!(want.iter().all(|t| t.0 > 0), "every object clamps some texels: {want:?}");
         assert!(
-            want_state.iter().zip(state(&objects())).all(|(a, b)| a != b),
+            want_state.iter().zip(state(&objects())).all(|(a, b)| *a != b),
             "the stage changes every object"
         );
         for n in [1, 2, 3] {
