@@ -4,8 +4,8 @@
 //! — `Ei`, `Kd` and the clamped count — and any per-object extra bytes to every other rank
 //! ([`exchange_albedo`]). Every stage of an object depends on that object's maps only, so every
 //! rank ends with the state one process computes, bit for bit. With one process nothing is sent.
-//! Tests: the MPI tier of the CLI (`tests/mpi.rs`: `delight` under 1, 2 and 3 ranks writes the
-//! bytes of one process).
+//! Tests: below (ranks simulated by threads, [`opal::dist::ThreadComm`]) and the MPI tier of the
+//! CLI (`tests/mpi.rs`: `delight` under 1, 2 and 3 ranks writes the bytes of one process).
 
 use super::ObjectResult;
 use opal::dist::{Comm, Packer, Unpacker};
@@ -98,4 +98,156 @@ pub(super) fn per_object<T: Send>(
             t
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::delight::albedo::update_kd;
+    use crate::delight::atlas::{NO_TRI, build_atlas};
+    use crate::delight::footprint::{ResolutionChoice, ResolutionRule};
+    use opal::dist::{Solo, ThreadComm};
+    use opal::geometry::TriangleMesh;
+    use opal::math::Vec3;
+
+    /// A value in [0, 1) from a texel's object and index (a fixed integer hash).
+    fn hash01(k: usize, i: usize, c: usize) -> f32 {
+        let mut x = ((k as u64) << 40) ^ ((i as u64) << 2) ^ c as u64;
+        x = x.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        x ^= x >> 29;
+        x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        x ^= x >> 32;
+        (x >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// Five quads of different sizes and atlas resolutions (so the owners differ in texel count),
+    /// with luminance and direct irradiance varying from texel to texel; some texels are bright
+    /// enough for `Kd` to clamp.
+    fn objects() -> Vec<ObjectResult> {
+        [(1.0f32, 8usize), (2.0, 24), (0.5, 16), (1.5, 32), (1.0, 12)]
+            .iter()
+            .enumerate()
+            .map(|(k, &(s, res))| {
+                let z = k as f32;
+                let positions =
+                    vec![Vec3::new(0., 0., z), Vec3::new(s, 0., z), Vec3::new(s, s, z), Vec3::new(0., s, z)];
+                let mesh =
+                    TriangleMesh { positions, indices: vec![[0, 1, 2], [0, 2, 3]], ..Default::default() };
+                let a = build_atlas(&mesh, res, false).unwrap();
+                let n = a.width * a.height;
+                let px =
+                    |f: &dyn Fn(usize, usize) -> f32| (0..n).map(|i| [0, 1, 2].map(|c| f(i, c))).collect();
+                ObjectResult {
+                    shape: k,
+                    id: format!("quad{k}"),
+                    resolution: ResolutionChoice {
+                        rule: ResolutionRule::Setting,
+                        unclamped: None,
+                        pixel_density: None,
+                        texel_density: None,
+                        seen_area_fraction: 1.0,
+                    },
+                    l: px(&|i, c| hash01(k, i, c)),
+                    observed: a
+                        .texel_tri
+                        .iter()
+                        .enumerate()
+                        .map(|(i, &t)| t != NO_TRI && i % 7 != 3)
+                        .collect(),
+                    ed: px(&|i, c| 0.5 + 2.0 * hash01(k + 100, i, c)),
+                    ei: px(&|i, c| 0.5 * hash01(k + 200, i, c)),
+                    kd: vec![[0.0; 3]; n],
+                    near_emitter: false,
+                    seen_fraction: 1.0,
+                    clamped: 0,
+                    atlas: a,
+                }
+            })
+            .collect()
+    }
+
+    /// The bits of the state an object stage may change, and of its inputs.
+    fn state(objects: &[ObjectResult]) -> Vec<(Vec<u32>, usize)> {
+        let bits = |v: &[[f32; 3]]| v.iter().flat_map(|e| e.map(f32::to_bits)).collect::<Vec<u32>>();
+        objects
+            .iter()
+            .map(|o| ([bits(&o.ei), bits(&o.kd), bits(&o.l), bits(&o.ed)].concat(), o.clamped))
+            .collect()
+    }
+
+    /// The albedo update of every object split across 1, 2 and 3 ranks (threads): each object is
+    /// updated by its owner only, and every rank ends with the `Ei`, `Kd`, clamped counts and
+    /// per-object values of one process, bit for bit.
+    #[test]
+    fn per_object_gives_every_rank_the_state_of_one_process() {
+        let stage = |_: usize, o: &mut ObjectResult| {
+            o.clamped = update_kd(o);
+            (o.clamped as u64, o.kd.iter().map(|e| e[0] as f64).sum::<f64>())
+        };
+        let put = |t: &(u64, f64), p: &mut Packer| {
+            p.u64(t.0);
+            p.f64(t.1);
+        };
+        let get = |u: &mut Unpacker| (u.u64(), u.f64());
+        let mut want_objects = objects();
+        let want = per_object(&Solo, &mut want_objects, stage, put, get);
+        let want_state = state(&want_objects);
+        assert!(want.iter().all(|t| t.0 > 0), "every object clamps some texels: {want:?}");
+        assert!(
+            want_state.iter().zip(state(&objects())).all(|(a, b)| *a != b),
+            "the stage changes every object"
+        );
+        for n in [1, 2, 3] {
+            let out = ThreadComm::run(n, |c| {
+                let mut objs = objects();
+                let owner = owners(c, &objs);
+                let calls = std::sync::Mutex::new(Vec::new());
+                let got = per_object(
+                    c,
+                    &mut objs,
+                    |j, o| {
+                        calls.lock().unwrap().push(j);
+                        stage(j, o)
+                    },
+                    put,
+                    get,
+                );
+                let mut calls = calls.into_inner().unwrap();
+                calls.sort();
+                (got, state(&objs), owner, calls)
+            });
+            let owner = &out[0].2;
+            for (r, (got, st, own, calls)) in out.iter().enumerate() {
+                assert_eq!(own, owner, "{n} ranks: rank {r} disagrees on the owners");
+                let mine: Vec<usize> = (0..owner.len()).filter(|&j| owner[j] == r).collect();
+                assert_eq!(calls, &mine, "{n} ranks: rank {r} ran the stage on objects it does not own");
+                assert_eq!(got.len(), want.len());
+                for (g, w) in got.iter().zip(&want) {
+                    assert_eq!((g.0, g.1.to_bits()), (w.0, w.1.to_bits()), "{n} ranks, rank {r}");
+                }
+                assert!(st == &want_state, "{n} ranks: rank {r} ends with other maps than one process");
+            }
+            // every rank owns at least one object (5 objects, at most 3 ranks)
+            assert!((0..n).all(|r| owner.contains(&r)), "{n} ranks: {owner:?}");
+        }
+    }
+
+    /// Owners balance texel counts: with two ranks neither holds more than the largest object
+    /// beyond half of all texels (the longest-processing-time bound), and one process owns all.
+    #[test]
+    fn owners_balance_texels() {
+        let objs = objects();
+        assert_eq!(owners(&Solo, &objs), vec![0; objs.len()]);
+        let texels: Vec<usize> = objs.iter().map(|o| o.atlas.width * o.atlas.height).collect();
+        let total: usize = texels.iter().sum();
+        let largest = *texels.iter().max().unwrap();
+        let owner = ThreadComm::run(2, |c| owners(c, &objs)).remove(0);
+        for r in 0..2 {
+            let load: usize = (0..objs.len()).filter(|&j| owner[j] == r).map(|j| texels[j]).sum();
+            assert!(
+                2 * load <= total + largest,
+                "rank {r}: {load} of {total} texels ({texels:?}, {owner:?})"
+            );
+        }
+    }
 }
