@@ -792,8 +792,8 @@ fn checkpoint_resume_gives_the_same_bits() {
     assert!(e.to_string().contains("other inputs or settings"), "{e}");
 }
 
-/// [`env_small_constant_albedos_within_1_percent`] at 8 M light paths per pass (ignored, ~90 s
-/// wall / ~30 CPU-s in release at load 13: `cargo test --release -p opal-inverse --test delight
+/// [`env_small_constant_albedos_within_1_percent`] at 8 M light paths per pass (ignored, 57–90 s
+/// wall / ~30 CPU-s in release at load 9–13: `cargo test --release -p opal-inverse --test delight
 /// -- --ignored --exact env_small_8m_paths_within_1_percent --nocapture`). Regression test of
 /// the environment-lit bias that grew with the paths (at 92465b6 the sphere read +1.23 / +1.25
 /// / +0.82 % at 8 M, 0.65 % at 2 M). Measured at 8b4cb24 (branch h27c): worst 0.17 % (back wall
