@@ -7,8 +7,9 @@
 //! perpendicular to the direction, R before the centre of the scene's bounding sphere (set by
 //! [`DirectionalLight::set_bounds`]): area density 1/(πR²), power Φ = πR² E.
 //!
-//! Tests: `super::tests` (emission density against the power) and the path/light tracer
-//! agreement in `integrator/light_tracer/tests.rs`.
+//! Tests: `super::tests` (emission density against the power), the χ² of the emission origins
+//! on the disk (`envmap::tests::chi2_infinite_light_emission_positions`) and the path/light
+//! tracer agreement in `integrator/light_tracer/tests.rs`.
 
 use super::envmap::disk_origin;
 use crate::math::{PI, Vec2, Vec3};
