@@ -11,7 +11,9 @@ the passes, float16). Opal's `tests/mitsuba_materials.rs` renders the same XML a
 Scenes: conductor (gold sphere), roughconductor (anisotropic GGX copper sphere), plastic (blue
 sphere), roughplastic (Beckmann, bitmap-textured diffuse reflectance on a sphere),
 thindielectric (a tilted thin pane in front of the camera), disk (a disk ceiling light and a
-tilted diffuse disk), cylinder (a diffuse cylinder from p0/p1/radius and a flipped one).
+tilted diffuse disk), cylinder (a diffuse cylinder from p0/p1/radius and a flipped one),
+instance (a shapegroup of a sphere mesh and a cube, instanced three times with uniform,
+non-uniform and rotated transforms).
 
 Usage: bench/.venv/bin/python bench/scripts/mitsuba_materials_scenes.py [--spp 1024] [--res 96]
 """
@@ -116,6 +118,18 @@ SCENES = {
                 '<shape type="cylinder"><point name="p0" value="0.55, -1, 0.3"/><point name="p1" value="0.55, -0.3, 0.3"/>'
                 '<float name="radius" value="0.2"/><boolean name="flip_normals" value="true"/>'
                 '<bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="0.3, 0.6, 0.6"/></bsdf></bsdf></shape>',
+    "instance": '<shape type="shapegroup" id="group">'
+                '<shape type="ply"><string name="filename" value="../sphere.ply"/><transform name="to_world">'
+                '<scale value="0.6"/><translate y="1.1"/></transform>'
+                '<bsdf type="diffuse"><rgb name="reflectance" value="0.75, 0.6, 0.2"/></bsdf></shape>'
+                '<shape type="cube"><transform name="to_world"><scale value="0.5"/></transform>'
+                '<bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.35, 0.7"/></bsdf></shape></shape>'
+                '<shape type="instance" id="a"><ref id="group"/><transform name="to_world"><scale value="0.3"/>'
+                '<translate x="-0.5" y="-0.85" z="0.2"/></transform></shape>'
+                '<shape type="instance" id="b"><ref id="group"/><transform name="to_world">'
+                '<scale x="0.35" y="0.22" z="0.25"/><rotate y="1" angle="35"/><translate x="0.45" y="-0.89" z="-0.2"/></transform></shape>'
+                '<shape type="instance" id="c"><ref id="group"/><transform name="to_world"><scale value="0.2"/>'
+                '<rotate x="1" angle="25"/><rotate z="1" angle="-15"/><translate x="0.05" y="0.15" z="-0.45"/></transform></shape>',
 }
 # the disk scene lights the room with a disk light instead of the square one
 DISK_LIGHT = """

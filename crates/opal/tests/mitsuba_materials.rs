@@ -123,3 +123,4 @@ zt!(roughplastic_scene_matches_mitsuba, "roughplastic", 256);
 zt!(thindielectric_scene_matches_mitsuba, "thindielectric", 256);
 zt!(disk_scene_matches_mitsuba, "disk", 256);
 zt!(cylinder_scene_matches_mitsuba, "cylinder", 256);
+zt!(instance_scene_matches_mitsuba, "instance", 256);

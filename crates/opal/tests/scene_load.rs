@@ -1187,6 +1187,61 @@ fn disk_and_cylinder_shapes() {
     assert!(s.contains("cylinder radius must be > 0"), "{s}");
 }
 
+/// `shapegroup` + `instance`: each instance adds the group's shapes with its `to_world` applied
+/// after theirs (positions and normals), ids `<instance>.<shape>`, the group itself renders
+/// nothing; emitters in a group, a group without id, a reference to a non-group are errors.
+#[test]
+fn instances_copy_and_transform_the_group() {
+    let group = r#"<shape type="shapegroup" id="g">
+            <shape type="rectangle" id="r"><transform name="to_world"><translate z="1"/></transform></shape>
+            <shape type="disk"><bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.3, 0.4"/></bsdf></shape>
+        </shape>"#;
+    let d = ok(&format!(
+        r#"{group}
+        <shape type="instance" id="a"><ref id="g"/></shape>
+        <shape type="instance"><ref id="g"/><transform name="to_world"><scale x="2"/><rotate y="1" angle="90"/><translate y="3"/></transform></shape>"#
+    ));
+    assert_eq!(d.shapes.len(), 4, "two instances of a two-shape group, the group itself not rendered");
+    assert_eq!(d.shapes[0].id, "a.r");
+    assert!(d.shapes[2].id.starts_with("instance_") && d.shapes[2].id.ends_with(".r"), "{}", d.shapes[2].id);
+    assert!(d.shapes[0].mesh.positions.iter().all(|p| (p.z - 1.0).abs() < 1e-6));
+    // second instance: (x, y, z) → scale x by 2 → rotate 90° about y: (x', z') = (z, −x) → +3 in y
+    for (p0, p1) in d.shapes[0].mesh.positions.iter().zip(&d.shapes[2].mesh.positions) {
+        let want = Vec3::new(p0.z, p0.y + 3.0, -2.0 * p0.x);
+        assert!(close(*p1, want, 1e-5), "{p0} → {p1}, want {want}");
+    }
+    // the rectangle's normal +z becomes +x
+    assert!(
+        d.shapes[2].mesh.normals.iter().all(|n| close(*n, Vec3::X, 1e-5)),
+        "{:?}",
+        d.shapes[2].mesh.normals
+    );
+    match &d.shapes[3].bsdf {
+        BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(c) } => assert!((c[1] - 0.3).abs() < 1e-6),
+        b => panic!("the group's bsdf travels with the copy, got {b:?}"),
+    }
+    // vertex normals by the inverse transpose: a unit sphere scaled by 2 in y has the normal
+    // ∝ (x, y/4, z) at the scaled point (x, y, z)
+    let d = ok(r#"<shape type="shapegroup" id="s"><shape type="sphere"/></shape>
+        <shape type="instance"><ref id="s"/><transform name="to_world"><scale y="2"/></transform></shape>"#);
+    let m = &d.shapes[0].mesh;
+    assert!(!m.normals.is_empty());
+    for (p, n) in m.positions.iter().zip(&m.normals) {
+        let want = Vec3::new(p.x, p.y / 4.0, p.z).normalize();
+        assert!(close(*n, want, 1e-4), "{p}: {n} vs {want}");
+    }
+    let (_, s) = err_body(
+        r#"<shape type="shapegroup" id="g"><shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape></shape>"#,
+    );
+    assert!(s.contains("emitters cannot be instanced"), "{s}");
+    let (_, s) = err_body(r#"<shape type="shapegroup"><shape type="rectangle"/></shape>"#);
+    assert!(s.contains("needs an `id`"), "{s}");
+    let (_, s) = err_body(r#"<bsdf type="diffuse" id="m"/><shape type="instance"><ref id="m"/></shape>"#);
+    assert!(s.contains("exactly one <ref"), "{s}");
+    let (_, s) = err_body(r#"<shape type="instance"><ref id="nothing"/></shape>"#);
+    assert!(s.contains("no bsdf, texture or shapegroup with this id"), "{s}");
+}
+
 /// A binary PLY that declares 2.7·10¹³ rows of an element with no properties (found by the fuzz
 /// target `ply` as a hang): read at once, with an error for what the file really lacks, not a
 /// loop over empty rows.

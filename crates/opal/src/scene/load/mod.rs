@@ -30,6 +30,7 @@
 
 mod bsdfs;
 mod emitters;
+mod instances;
 mod plugins;
 mod properties;
 mod transforms;
@@ -70,6 +71,8 @@ pub fn load_mitsuba_xml(path: &Path, params: &[(String, String)]) -> Result<Scen
         }
         match loader.instantiate(c)? {
             Object::Shape(s) => scene.shapes.push(*s),
+            Object::Shapes(v) => scene.shapes.extend(v),
+            Object::ShapeGroup(_) => {}
             Object::Sensor(s) => scene.sensors.push(*s),
             Object::Emitter(em) => scene.emitters.push(em),
             Object::Integrator(i) => {

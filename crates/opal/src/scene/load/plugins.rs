@@ -35,7 +35,7 @@ use std::sync::Arc;
 /// before the element's children are read. Adding a plugin = one arm in
 /// `Loader::instantiate` + its name here (a unit test checks the two agree).
 pub const SUPPORTED_PLUGINS: &[(&str, &[&str])] = &[
-    ("shape", &["obj", "ply", "rectangle", "cube", "sphere", "disk", "cylinder"]),
+    ("shape", &["obj", "ply", "rectangle", "cube", "sphere", "disk", "cylinder", "shapegroup", "instance"]),
     (
         "bsdf",
         &[
@@ -95,6 +95,10 @@ pub(super) struct FilmDesc {
 #[derive(Clone, Debug)]
 pub(super) enum Object {
     Shape(Box<ShapeDesc>),
+    /// A `shapegroup`'s shapes (rendered only through instances).
+    ShapeGroup(Vec<ShapeDesc>),
+    /// An `instance`: copies of a group's shapes in world space.
+    Shapes(Vec<ShapeDesc>),
     Bsdf(BsdfDesc),
     Texture(TextureDesc),
     AreaEmitter(AreaEmitterDesc),
@@ -110,7 +114,7 @@ impl Object {
     /// The plugin tag of this object (`emitter` for both emitter kinds).
     pub(super) fn kind(&self) -> &'static str {
         match self {
-            Object::Shape(_) => "shape",
+            Object::Shape(_) | Object::ShapeGroup(_) | Object::Shapes(_) => "shape",
             Object::Bsdf(_) => "bsdf",
             Object::Texture(_) => "texture",
             Object::AreaEmitter(_) | Object::Emitter(_) => "emitter",
@@ -199,6 +203,8 @@ impl Loader {
             ("shape", "obj" | "ply" | "rectangle" | "cube" | "sphere" | "disk" | "cylinder") => {
                 Object::Shape(Box::new(self.shape(e, &ty, &mut p)?))
             }
+            ("shape", "shapegroup") => self.shapegroup(e, p)?,
+            ("shape", "instance") => self.instance(e, p)?,
             ("emitter", "area") => {
                 let (radiance, _) = p
                     .color("radiance")?
@@ -225,7 +231,7 @@ impl Loader {
             if !self.ids.insert(id.value.clone()) {
                 return Err(id.loc.err(format!("duplicate id `{}`", id.value)));
             }
-            if matches!(obj, Object::Bsdf(_) | Object::Texture(_)) {
+            if matches!(obj, Object::Bsdf(_) | Object::Texture(_) | Object::ShapeGroup(_)) {
                 self.named.insert(id.value.clone(), obj.clone());
             }
         }

@@ -330,7 +330,7 @@ impl Loader {
                     let id = c.req("id")?;
                     let obj = self.named.get(&id.value).cloned().ok_or_else(|| {
                         id.loc.err(format!(
-                            "<ref id=\"{}\">: no bsdf or texture with this id was declared before",
+                            "<ref id=\"{}\">: no bsdf, texture or shapegroup with this id was declared before",
                             id.value
                         ))
                     })?;
