@@ -21,7 +21,7 @@
 //! Layout (private submodules): `xml` reads files into an element tree (substitution,
 //! defaults, includes); `properties` parses parameter elements and references into typed
 //! property lists; `transforms` composes `to_world` and applies it to meshes; `plugins` maps
-//! each `(tag, type)` to its description (`bsdfs`: Mitsuba's metals, plastics and thin sheets; `emitters`: the emitters not attached to shapes). Analytic shapes are tessellated by
+//! each `(tag, type)` to its description (`bsdfs`: Mitsuba's metals, plastics and thin sheets; `emitters`: the emitters not attached to shapes; `instances`: `shapegroup`/`instance`, flattened). Analytic shapes are tessellated by
 //! [`crate::geometry::shapes`] (re-exported here).
 //!
 //! Tests: unit tests in `plugins` (dispatch table, field of view) and
