@@ -22,14 +22,8 @@ BIN=$(realpath "${OPAL_BIN:-target/release/opal}")
 command -v mpirun >/dev/null || { echo "mpirun not found" >&2; exit 1; }
 TMP=$(mktemp -d)
 trap 'rm -rf "$TMP"' EXIT
-LS=crates/opal-inverse/tests/data/lights_small
-args_of() {
-  case "$1" in
-    render) echo "render crates/opal/tests/data/cbox/scene.xml -o OUT/o.exr --spp 1024 --threads 1 --quiet" ;;
-    gonio) echo "gonio simulate -o OUT/curves.csv --photons 40000000 --ndf ggx:0.15 --entry rough --threads 1 --quiet" ;;
-    delight) echo "delight --scene $LS/scene.xml --views $LS/transforms.json -o OUT/d --light-paths 2000000 --iterations 3 --threads 1 --quiet" ;;
-  esac
-}
+# the workloads (args_of), shared with the other MPI benchmark
+source bench/mpi_workloads.sh
 cpu() { awk '{printf "%.2f %.2f\n", $1, $2 + $3}' "$1"; }
 for w in render gonio delight; do
   [ "$WHICH" = all ] || [ "$WHICH" = "$w" ] || continue

@@ -28,16 +28,8 @@ PRE=()
 [ "${OPAL_SETSID:-0}" = 1 ] && PRE=(setsid -w)
 TMP=$(mktemp -d)
 trap 'rm -rf "$TMP"' EXIT
-LS=crates/opal-inverse/tests/data/lights_small
-
-# args of each workload after `opal`; OUT is replaced by the output path
-args_of() {
-  case "$1" in
-    render) echo "render crates/opal/tests/data/cbox/scene.xml -o OUT/o.exr --spp 1024 --threads 1 --quiet" ;;
-    gonio) echo "gonio simulate -o OUT/curves.csv --photons 40000000 --ndf ggx:0.15 --entry rough --threads 1 --quiet" ;;
-    delight) echo "delight --scene $LS/scene.xml --views $LS/transforms.json -o OUT/d --light-paths 2000000 --iterations 3 --threads 1 --quiet" ;;
-  esac
-}
+# the workloads (args_of), shared with the other MPI benchmark
+source bench/mpi_workloads.sh
 
 # runs "$@" under /usr/bin/time; prints "wall cpu"
 timed() {
