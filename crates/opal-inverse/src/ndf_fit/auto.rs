@@ -18,12 +18,12 @@ pub const DOTTED_TRIGGER: f64 = 2.0;
 
 /// `auto` adds hybrid nodes (up to [`FitOptions::hybrid_nodes`]) to the kept model when, after
 /// the single-NDF and dotted models, its check rms still exceeds this many times its noise:
-/// the acceptance bound of a fit (rms/noise ≤ 1.5), so a model that fits is never given a
-/// table. Lower than [`DOTTED_TRIGGER`] because a shape error the families cannot follow
+/// the bound of a fit that describes the data ([`super::FITS_WITHIN_NOISE`]), so a model that
+/// fits is never given a table. Lower than [`DOTTED_TRIGGER`] because a shape error the families cannot follow
 /// shows less in the RMS *relative* residual than a missing spike or lobe: the dim points'
 /// large relative noise dilutes it (a GGX α 0.3 face with a hole at θm = 0, `auto_picks_hybrid`:
 /// the best single NDF at rms/noise 1.69, χ² 6210).
-pub const HYBRID_TRIGGER: f64 = 1.5;
+pub const HYBRID_TRIGGER: f64 = super::FITS_WITHIN_NOISE;
 
 /// Default of [`FitOptions::hybrid_nodes`] (also the CLI's `--hybrid-nodes`).
 pub const DEFAULT_HYBRID_NODES: usize = 4;

@@ -258,10 +258,15 @@ pub struct ScaleCheck {
     pub scaled_ratio: f64,
 }
 
+/// The bound of a fit that describes the data: check rms ≤ this many times the noise (the
+/// acceptance bound of method A's fits). Shared by [`SCALED_FIT_MAX_RATIO`] and
+/// [`HYBRID_TRIGGER`].
+pub const FITS_WITHIN_NOISE: f64 = 1.5;
+
 /// Largest [`ScaleCheck::scaled_ratio`] at which a flagged check is put down to the
-/// calibration (the model with the free factor fits within the acceptance bound of 1.5 × the
-/// noise); above it the shape does not match and k follows the wrong shape.
-pub const SCALED_FIT_MAX_RATIO: f64 = 1.5;
+/// calibration (the model with the free factor fits within [`FITS_WITHIN_NOISE`]); above it
+/// the shape does not match and k follows the wrong shape.
+pub const SCALED_FIT_MAX_RATIO: f64 = FITS_WITHIN_NOISE;
 
 impl ScaleCheck {
     /// The check from (measured, its standard error, simulated, its standard error) points.
