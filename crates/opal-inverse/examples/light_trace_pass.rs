@@ -12,7 +12,7 @@
 //! bundled `crates/opal/tests/data/cbox/scene.xml`; e.g. the scanned-object room written by
 //! `cargo run --release -p opal --example make_scan_room -- /tmp/scan`, then
 //! `SCENE=/tmp/scan/scene.xml`), `RES` (one map resolution for every object instead
-//! of the adaptive ones), `BATCH` (paths per batch, default 2²⁰), `DIRECT=0` (no first-hit
+//! of the adaptive ones), `BATCH` (paths per batch, default 2¹⁸ as `opal delight`), `DIRECT=0` (no first-hit
 //! deposits, as in the de-lighting passes after the first).
 
 use opal::integrator::light_tracer::{self, IrradianceTarget, LightTraceSettings};
@@ -52,7 +52,7 @@ fn main() {
         sh.mesh = a.mesh;
     }
     let scene = Scene::build(&desc).expect("scene builds");
-    let batch: u64 = std::env::var("BATCH").ok().map(|b| b.parse().expect("BATCH")).unwrap_or(1 << 20);
+    let batch: u64 = std::env::var("BATCH").ok().map(|b| b.parse().expect("BATCH")).unwrap_or(1 << 18);
     // DIRECT=0: no first-hit deposits (as the de-lighting passes after the first)
     let direct = std::env::var("DIRECT").map_or(true, |d| d != "0");
     let s = LightTraceSettings { paths, seed: 1, batch_size: batch, direct, ..Default::default() };

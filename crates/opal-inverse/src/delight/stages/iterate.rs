@@ -153,13 +153,10 @@ pub(in crate::delight) fn iterate(
         let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
         let lt = LightTraceSettings {
             paths,
-            // several batches per process when the paths are split (the maps do not depend on
-            // the batch size)
-            batch_size: if comm.size() > 1 {
-                paths.div_ceil(4 * comm.size() as u64).clamp(1 << 12, 1 << 20)
-            } else {
-                1 << 20
-            },
+            // batches of at most 2¹⁸ paths (≈ 0.1 s of one core), at least 16 per process: the
+            // workers pull batches from a counter, so the last one to finish waits at most about
+            // one batch (the maps do not depend on the batch size)
+            batch_size: paths.div_ceil(16 * comm.size() as u64).clamp(1 << 12, 1 << 18),
             max_depth: -1,
             rr_depth: 5,
             seed: s.seed.wrapping_add(k as u64),
