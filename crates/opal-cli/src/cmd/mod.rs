@@ -7,4 +7,3 @@ pub mod face_render;
 pub mod fit_ndf;
 pub mod gonio;
 pub mod render;
-pub mod scale_advice;

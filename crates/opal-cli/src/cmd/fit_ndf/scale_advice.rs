@@ -13,7 +13,7 @@ use opal_inverse::ndf_fit::SCALED_FIT_MAX_RATIO;
 /// fit with the free factor k has rms/noise `scaled_ratio`: suggests `--scale global` only
 /// when that fit is good (≤ [`SCALED_FIT_MAX_RATIO`]), else says that the model's shape does
 /// not match (k then follows the wrong shape and `--scale global` would hide a model error).
-pub fn scale_advice(k: f64, stderr: f64, scaled_ratio: f64) -> String {
+pub(super) fn scale_advice(k: f64, stderr: f64, scaled_ratio: f64) -> String {
     let head = format!("measured ≈ {k:.4} ± {stderr:.4} × simulated");
     if scaled_ratio <= SCALED_FIT_MAX_RATIO {
         format!(
