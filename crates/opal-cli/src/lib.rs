@@ -20,7 +20,7 @@ use clap::{Parser, Subcommand};
 #[derive(Parser, Debug)]
 #[command(name = "opal", version, about, long_about = None)]
 pub struct Cli {
-    /// Hide progress bars.
+    /// Hide progress bars and progress messages (warnings and errors are still printed).
     #[arg(long, global = true)]
     pub quiet: bool,
     /// The subcommand.

@@ -16,9 +16,15 @@ pub fn set_threads(threads: Option<usize>) {
     }
 }
 
-/// Hide progress bars from now on.
+/// Hide progress bars and progress messages from now on.
 pub fn set_quiet(q: bool) {
     QUIET.store(q, Ordering::Relaxed);
+}
+
+/// Whether progress bars and progress messages are hidden (`--quiet`, or a rank other than 0
+/// under MPI).
+pub fn is_quiet() -> bool {
+    QUIET.load(Ordering::Relaxed)
 }
 
 /// Set by the first Ctrl-C (SIGINT) or SIGTERM; long runs stop at their next checkpoint.

@@ -283,9 +283,14 @@ fn view_gains_in_report() {
             "--json".into(),
         ]
     };
-    let a = args("exposure+wb");
+    // --quiet: no progress messages, the warnings still on stderr
+    let mut a = args("exposure+wb");
+    a.push("--quiet".into());
     let o = opal(&a.iter().map(String::as_str).collect::<Vec<_>>());
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(!err.contains("iteration 1") && !err.contains("luminance "), "{err}");
+    assert!(err.lines().any(|l| l.starts_with("warning: ") && l.contains("'v4'")), "{err}");
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let g = &report["view_gains"];
     assert_eq!(g["mode"], "exposure+wb");

@@ -388,6 +388,9 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         DelightSettings { checkpoint: None, debug: Default::default(), ..settings }
     };
     let r = delight(&desc, &views, &settings, log)?;
+    for w in &r.warnings {
+        log(&format!("warning: {w}"));
+    }
     // photos and re-renders are compared at the refined poses
     let views = match &r.poses {
         Some(p) => {
@@ -757,7 +760,13 @@ fn write_outputs(
 pub fn run(a: DelightArgs) -> Result<i32> {
     util::ensure_not_input(&a.output, &[&a.scene, &a.views])?;
     util::set_threads(a.threads);
-    let log = |l: &str| eprintln!("{l}");
+    // --quiet keeps the warnings (rank 0's only under MPI: the other ranks repeat them)
+    let (quiet, root) = (util::is_quiet(), crate::dist::is_root());
+    let log = move |l: &str| {
+        if !quiet || (root && l.starts_with("warning: ")) {
+            eprintln!("{l}")
+        }
+    };
     util::install_interrupt_handler();
     let output_existed = a.output.exists();
     if crate::dist::size() > 1 && a.resume {
@@ -766,7 +775,6 @@ pub fn run(a: DelightArgs) -> Result<i32> {
         );
     }
     // under MPI only rank 0 keeps the command line and the checkpoint
-    let root = crate::dist::is_root();
     if root {
         resume::save_args(&a.output.join(CHECKPOINT))?;
     }
