@@ -28,7 +28,12 @@
 //! Jacobi-preconditioned conjugate gradients on the normal equations, warm-started from the
 //! previous map. Values are solved in units of the mean observed radiance (and s in units of
 //! its mean), so λ and ε are scale-free; λ is scaled by the observation density (rows per
-//! unknown / 2.5, the density of the reference data the defaults were chosen on).
+//! unknown / 2.5, the density of the reference data the defaults were chosen on) and, below that
+//! density, by `max(1, (σ/σ_ref)²)`, σ the photos' relative noise measured on the object
+//! ([`super::photo_noise`]), σ_ref that of the reference photos: the data term's rows are
+//! weighted to mean 1, so λ assumed σ_ref, and noisier photos need the MAP weight (without it the
+//! texels of 24 views of 160×120 at 8 spp were ~3× noisier than back-projection's and the
+//! [0, 1] clamp of the albedo biased the means by up to 25 %, docs/delight.md).
 //!
 //! Parameters: [`SrSettings`]. Conventions: texel (x, y) has its centre at
 //! uv = ((x+½)/W, (y+½)/H) (Mitsuba's bitmap lookup, clamp wrap); only pixels whose S² sub-pixel
@@ -91,8 +96,9 @@ pub struct SrSettings {
     pub min_weight: f32,
     /// Relative noise σ_ref of the photos [`SrSettings::lambda`] was chosen on (measured by
     /// [`super::photo_noise::relative_photo_noise`] on the reference Cornell box's back wall:
-    /// 0.022). The prior weight is multiplied by `max(1, (σ/σ_ref)²)` with σ the photos' relative
-    /// noise measured on the object (the MAP weight for noisier photos); when it cannot be
+    /// 0.022). Where the pixel rows per unknown are below the reference density (2.5), the prior
+    /// weight is multiplied by `max(1, (σ/σ_ref)²)` with σ the photos' relative noise measured on
+    /// the object (the MAP weight for noisier photos); when it cannot be
     /// measured (no texel seen by two views) the solve returns `None` (the caller keeps the
     /// back-projected map). 0 = no scaling.
     pub reference_noise: f32,
@@ -510,7 +516,13 @@ pub fn superres_luminance(
         // back-projected map is kept
         return None;
     }
-    let noise_factor = photo_noise.map_or(1.0, |x| (x / s.reference_noise as f64).powi(2).max(1.0)) as f32;
+    // only below the reference density: above it the density scaling already strengthens the
+    // prior, and the noise factor on top over-smoothed (64-pixel views on 32² maps, 1.3–8 × the
+    // reference density: floor +2.8 %, back wall −1 dB; docs/delight.md)
+    let noise_factor = match photo_noise {
+        Some(x) if density < 1.0 => (x / s.reference_noise as f64).powi(2).max(1.0) as f32,
+        _ => 1.0,
+    };
     let lambda = s.lambda * density * noise_factor;
     // warm start: back-projection where it exists, else Aᵀy / column weight
     let mut aty = vec![[0f32; 3]; m];
