@@ -61,7 +61,7 @@ pub fn relative_photo_noise(
             }
             let cs: f64 = s.iter().map(|x| x.2).sum();
             let mean = s.iter().map(|x| x.2 * x.0).sum::<f64>() / cs;
-            if !(mean > 0.0) {
+            if mean.is_nan() || mean <= 0.0 {
                 return out;
             }
             let shared = s.iter().map(|x| x.2 * x.2 * x.1).sum::<f64>() / (cs * cs);
