@@ -169,7 +169,7 @@ pub(crate) fn collect_samples(
             .map(|&i| {
                 let mut out = Vec::new();
                 for (k, (v, pb)) in views.iter().zip(pure).enumerate() {
-                    if let Some(ViewSample { sum: val, weight: wt, cos, tap_range: (lo, hi) }) =
+                    if let Some(ViewSample { sum: val, weight: wt, cos, tap_range: (lo, hi), .. }) =
                         view_sample(scene, shape, a, i, v, pb)
                     {
                         // taps that differ by more than the noise: an edge or a steep gradient

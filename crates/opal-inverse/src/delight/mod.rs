@@ -66,6 +66,7 @@ pub mod gather;
 pub mod inpaint;
 pub mod noise;
 mod observe;
+pub mod photo_noise;
 mod pipeline;
 pub mod pose;
 mod result;

@@ -58,6 +58,9 @@ pub(crate) struct ViewSample {
     pub sum: [f64; 3],
     /// `Σ w` (the texel's radiance in this view is `sum / weight`).
     pub weight: f64,
+    /// `Σ w²` (pixels with independent noise of variance σ² give the sample `sum / weight` the
+    /// variance `σ² · weight_sq / weight²`).
+    pub weight_sq: f64,
     /// Shading normal · direction to the camera.
     pub cos: f32,
     /// (min, max) luminance of the usable taps.
@@ -97,6 +100,7 @@ pub(crate) fn view_sample(
     let (fx, fy) = (x - x0, y - y0);
     let mut val = [0f64; 3];
     let mut wt = 0f64;
+    let mut wsq = 0f64;
     let mut range = (f32::INFINITY, f32::NEG_INFINITY);
     for (dx, dy, w) in
         [(0, 0, (1.0 - fx) * (1.0 - fy)), (1, 0, fx * (1.0 - fy)), (0, 1, (1.0 - fx) * fy), (1, 1, fx * fy)]
@@ -117,13 +121,14 @@ pub(crate) fn view_sample(
             val[ch] += w as f64 * c[ch] as f64;
         }
         wt += w as f64;
+        wsq += (w as f64).powi(2);
         let y = luminance(c.0);
         range = (range.0.min(y), range.1.max(y));
     }
     if wt < 0.5 {
         return None;
     }
-    Some(ViewSample { sum: val, weight: wt, cos, tap_range: range })
+    Some(ViewSample { sum: val, weight: wt, weight_sq: wsq, cos, tap_range: range })
 }
 
 /// Statistics of an image region (the paper's tables 1–3).

@@ -28,7 +28,12 @@
 //! Jacobi-preconditioned conjugate gradients on the normal equations, warm-started from the
 //! previous map. Values are solved in units of the mean observed radiance (and s in units of
 //! its mean), so λ and ε are scale-free; λ is scaled by the observation density (rows per
-//! unknown / 2.5, the density of the reference data the defaults were chosen on).
+//! unknown / 2.5, the density of the reference data the defaults were chosen on) and, below that
+//! density, by `max(1, (σ/σ_ref)²)`, σ the photos' relative noise measured on the object
+//! ([`super::photo_noise`]), σ_ref that of the reference photos: the data term's rows are
+//! weighted to mean 1, so λ assumed σ_ref, and noisier photos need the MAP weight (without it the
+//! texels of 24 views of 160×120 at 8 spp were ~3× noisier than back-projection's and the
+//! [0, 1] clamp of the albedo biased the means by up to 25 %, docs/delight.md).
 //!
 //! Parameters: [`SrSettings`]. Conventions: texel (x, y) has its centre at
 //! uv = ((x+½)/W, (y+½)/H) (Mitsuba's bitmap lookup, clamp wrap); only pixels whose S² sub-pixel
@@ -89,6 +94,14 @@ pub struct SrSettings {
     /// pixel whose footprint covers many texels, and the solve's value there, fitted to those
     /// pixels' averages, beats inpainting it).
     pub min_weight: f32,
+    /// Relative noise σ_ref of the photos [`SrSettings::lambda`] was chosen on (measured by
+    /// [`super::photo_noise::relative_photo_noise`] on the reference Cornell box's back wall:
+    /// 0.022). Where the pixel rows per unknown are below the reference density (2.5), the prior
+    /// weight is multiplied by `max(1, (σ/σ_ref)²)` with σ the photos' relative noise measured on
+    /// the object (the MAP weight for noisier photos); when it cannot be
+    /// measured (no texel seen by two views) the solve returns `None` (the caller keeps the
+    /// back-projected map). 0 = no scaling.
+    pub reference_noise: f32,
     /// Error-analysis hooks (all off by default; no effect on the results unless `synth` is set).
     pub diagnostics: SrDiagnostics,
 }
@@ -124,9 +137,21 @@ impl Default for SrSettings {
             cg_iters: 60,
             cg_tolerance: 0.0,
             min_weight: 0.0625,
+            reference_noise: 0.022,
             diagnostics: SrDiagnostics::default(),
         }
     }
+}
+
+/// What a super-resolution solve used: the photos' relative noise measured on the object
+/// ([`super::photo_noise::relative_photo_noise`]; `None` when not measured) and the prior weight
+/// λ after the density and noise scaling.
+#[derive(Clone, Copy, Debug)]
+pub struct SrInfo {
+    /// Relative noise σ of the photos on the object.
+    pub photo_noise: Option<f64>,
+    /// Prior weight used.
+    pub lambda: f32,
 }
 
 /// Sparse row-major matrix.
@@ -330,7 +355,8 @@ fn tie_gutters(rows: &mut [Row], a: &Atlas, sd: &[f32]) -> Vec<Vec<f32>> {
 /// irradiance estimate `Ed + Ei`, smooth) makes the unknowns `K = B / shading`, so the edge prior
 /// acts on the albedo instead of the lighting's gradients and shadows, and weights the pixels for
 /// relative noise (each row divided by the pixel's luminance).
-/// Returns `None` when no pixel sees the object.
+/// Returns `None` when no pixel sees the object, or when the photos' noise on it cannot be
+/// measured (see [`SrSettings::reference_noise`]): the caller keeps the back-projected map.
 #[allow(clippy::too_many_arguments)] // the scene, object, views and their buffers, the warm start, the shading, settings
 pub fn superres_luminance(
     scene: &Scene,
@@ -341,7 +367,7 @@ pub fn superres_luminance(
     (init, init_obs): (&[[f32; 3]], &[bool]),
     shading: Option<&[f32]>,
     s: &SrSettings,
-) -> Option<(Vec<[f32; 3]>, Vec<bool>)> {
+) -> Option<(Vec<[f32; 3]>, Vec<bool>, SrInfo)> {
     let n = a.width * a.height;
     if a.mesh.uvs.len() != a.mesh.positions.len() {
         return None;
@@ -475,7 +501,29 @@ pub fn superres_luminance(
         }
     }
     // observation density scaling of λ
-    let lambda = s.lambda * (amat.rows() as f32 / m as f32) / 2.5;
+    // observation density scaling of λ, then the photos' noise: λ is the weight of the prior
+    // against a data term in units of the relative noise σ_ref of the photos it was chosen on
+    // (rows weighted to mean 1), so with photos of relative noise σ > σ_ref the MAP weight is
+    // λ·(σ/σ_ref)² (never below λ: it is not validated for cleaner photos)
+    let density = amat.rows() as f32 / m as f32 / 2.5;
+    let photo_noise = if s.reference_noise > 0.0 {
+        super::photo_noise::relative_photo_noise(scene, shape, a, views, pure)
+    } else {
+        None
+    };
+    if s.reference_noise > 0.0 && photo_noise.is_none() {
+        // no texel seen by two views: the noise, and so the prior's weight, is unknown; the
+        // back-projected map is kept
+        return None;
+    }
+    // only below the reference density: above it the density scaling already strengthens the
+    // prior, and the noise factor on top over-smoothed (64-pixel views on 32² maps, 1.3–8 × the
+    // reference density: floor +2.8 %, back wall −1 dB; docs/delight.md)
+    let noise_factor = match photo_noise {
+        Some(x) if density < 1.0 => (x / s.reference_noise as f64).powi(2).max(1.0) as f32,
+        _ => 1.0,
+    };
+    let lambda = s.lambda * density * noise_factor;
     // warm start: back-projection where it exists, else Aᵀy / column weight
     let mut aty = vec![[0f32; 3]; m];
     at.mul(&y, &mut aty);
@@ -538,7 +586,7 @@ pub fn superres_luminance(
     let trace = s.diagnostics.trace;
     if trace {
         eprintln!(
-            "superres shape {shape}: {} rows, {m} unknowns, {} nonzeros, {} edges",
+            "superres shape {shape}: {} rows, {m} unknowns, {} nonzeros, {} edges, photo noise {photo_noise:?}, λ {lambda}",
             amat.rows(),
             amat.val.len(),
             edges.len()
@@ -655,7 +703,7 @@ pub fn superres_luminance(
         let shg = if shading.is_some() { (sd_t[g] as f64 / sh_mean).max(1e-3) as f32 } else { 1.0 };
         out[g] = k.map(|c| (c * shg * scale).max(0.0));
     }
-    Some((out, obs))
+    Some((out, obs, SrInfo { photo_noise, lambda }))
 }
 
 #[cfg(test)]
@@ -748,7 +796,7 @@ mod tests {
         assert!(a.kept_uvs);
         let pure: Vec<_> = views.iter().map(|v| views::pure_buffer(&scene, &v.camera)).collect();
         let (bp, bp_obs) = luminance_map(&scene, k as u32, &a, &views, &pure);
-        let (sr, sr_obs) = superres_luminance(
+        let (sr, sr_obs, _) = superres_luminance(
             &scene,
             k as u32,
             &a,

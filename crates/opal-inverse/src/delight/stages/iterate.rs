@@ -481,7 +481,7 @@ fn superres_pass(
                     shading = img.data.iter().map(|v| luminance(v.0)).collect();
                 }
             }
-            let (ls, os) = superres::superres_luminance(
+            let Some((ls, os, info)) = superres::superres_luminance(
                 scene,
                 o.shape as u32,
                 &o.atlas,
@@ -490,15 +490,23 @@ fn superres_pass(
                 (&o.l, &o.observed),
                 Some(&shading),
                 sr,
-            )?;
+            ) else {
+                return Some(format!(
+                    "super-resolution {}: back-projected luminance kept (no usable pixel, or no texel seen by two views to measure the photos' noise)",
+                    o.id
+                ));
+            };
             o.l = ls;
             o.observed = os;
             finish_luminance(o);
             o.clamped = update_kd(o);
+            let noise =
+                info.photo_noise.map_or(String::new(), |x| format!(", photo noise {:.1} %", 100.0 * x));
             Some(format!(
-                "super-resolved luminance {}: {:.1} % of texels seen ({:.1} s)",
+                "super-resolved luminance {}: {:.1} % of texels seen (prior weight {:.2e}{noise}; {:.1} s)",
                 o.id,
                 100.0 * o.seen_fraction,
+                info.lambda,
                 to.elapsed().as_secs_f64()
             ))
         })

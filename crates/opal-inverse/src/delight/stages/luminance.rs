@@ -86,7 +86,7 @@ pub(in crate::delight) fn luminance_maps(
         // `iterate`)
         if s.iterations == 0
             && let Some(sr) = &s.superres
-            && let Some((ls, os)) = superres::superres_luminance(
+            && let Some((ls, os, _)) = superres::superres_luminance(
                 scene,
                 o.shape as u32,
                 &o.atlas,
