@@ -84,6 +84,8 @@ impl ObjectPass {
 
 /// Runs the light-tracing iterations on `objects` (luminance, direct irradiance and initial
 /// albedo set); stage clocks `superres`, `iterations`, `light_tracing`, `iteration_post`.
+/// `costs`: the measured seconds per object of the last stage split by object
+/// ([`split::per_object`]; they balance each pass's post-processing across processes).
 pub(in crate::delight) fn iterate(
     inp: &Inputs,
     objects: &mut [ObjectResult],
@@ -91,6 +93,7 @@ pub(in crate::delight) fn iterate(
     pure: &[PureBuffer],
     warnings: &mut Vec<String>,
     timings: &mut Timings,
+    costs: &mut Vec<f64>,
 ) -> Result<Iterated> {
     let (desc, s, log) = (inp.desc, inp.s, inp.log);
     let targets: Vec<Option<IrradianceTarget>> = (0..desc.shapes.len())
@@ -114,7 +117,9 @@ pub(in crate::delight) fn iterate(
     let mut converged = false;
     let mut light_paths = 0;
     // checkpoints: the state the iterations start from, and the warnings they add
-    let fp = checkpoint::fingerprint(objects, s.seed, paths);
+    // (only a process that keeps checkpoints needs it: under MPI the ranks other than 0 keep none)
+    let fp = if s.checkpoint.is_some() { checkpoint::fingerprint(objects, s.seed, paths) } else { 0 };
+    let mut saver = checkpoint::Saver::default();
     let first_warning = warnings.len();
     let mut start = 1;
     let resume_from = match (s.resume, s.checkpoint.as_deref()) {
@@ -143,6 +148,7 @@ pub(in crate::delight) fn iterate(
     let t_it = StageClock::start();
     for k in start..=s.iterations {
         if s.cancel.as_ref().is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed)) {
+            saver.wait()?;
             return Err(Error::Interrupted { kept: kept(s, k - 1) });
         }
         let t0 = std::time::Instant::now();
@@ -173,6 +179,7 @@ pub(in crate::delight) fn iterate(
         let comm0 = comm.comm_seconds();
         let Some(out) = light_tracer::trace_split(&rscene, &targets, &lt, &|| {}, s.cancel.as_deref(), comm)
         else {
+            saver.wait()?;
             return Err(Error::Interrupted { kept: kept(s, k - 1) });
         };
         let (w, c) = c0.elapsed();
@@ -194,7 +201,7 @@ pub(in crate::delight) fn iterate(
             let m = out.maps[o.shape].as_ref().expect("target");
             object_pass(o, m, k, s, log)
         };
-        let post: Vec<ObjectPass> = split::per_object(comm, objects, pass, ObjectPass::put, ObjectPass::get);
+        let post: Vec<ObjectPass> = split::per_object(comm, objects, costs, pass, ObjectPass::put, ObjectPass::get);
         let mut texel_noise = Vec::new();
         let mut all_residuals = Vec::new();
         for p in post {
@@ -260,7 +267,7 @@ pub(in crate::delight) fn iterate(
         let done = st.max_rel_error < s.tolerance;
         iterations.push(st);
         if let Some(dir) = &s.checkpoint {
-            checkpoint::save(dir, fp, k, light_paths, objects, &iterations, &warnings[first_warning..])?;
+            saver.save(dir, fp, k, light_paths, objects, &iterations, &warnings[first_warning..])?;
         }
         let (w, c) = c0.elapsed();
         post_wall += w;
@@ -270,6 +277,7 @@ pub(in crate::delight) fn iterate(
             break;
         }
     }
+    saver.wait()?;
     timings.push("iterations", t_it.elapsed());
     timings.push("light_tracing", (lt_wall, lt_cpu));
     timings.push("iteration_post", (post_wall, post_cpu));
