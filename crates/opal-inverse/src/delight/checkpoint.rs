@@ -167,23 +167,24 @@ fn encode(
     iterations: &[IterationStats],
     warnings: &[String],
 ) -> (Vec<u8>, Vec<u8>) {
-    let mut bin = Vec::new();
-    let put3 = |bin: &mut Vec<u8>, v: &[[f32; 3]]| {
-        for x in v.iter().flatten() {
-            bin.extend_from_slice(&x.to_bits().to_le_bytes());
+    // little-endian f32 bits, written into a sized buffer (a loop the compiler vectorises)
+    let put = |bin: &mut Vec<u8>, v: &[f32]| {
+        let start = bin.len();
+        bin.resize(start + 4 * v.len(), 0);
+        for (d, x) in bin[start..].chunks_exact_mut(4).zip(v) {
+            d.copy_from_slice(&x.to_bits().to_le_bytes());
         }
     };
+    let mut bin = Vec::new();
     for o in objects {
-        put3(&mut bin, &o.l);
+        put(&mut bin, o.l.as_flattened());
         bin.extend(o.observed.iter().map(|&b| b as u8));
-        put3(&mut bin, &o.ei);
-        put3(&mut bin, &o.kd);
+        put(&mut bin, o.ei.as_flattened());
+        put(&mut bin, o.kd.as_flattened());
     }
     for s in iterations {
         for m in &s.error_maps {
-            for x in m {
-                bin.extend_from_slice(&x.to_bits().to_le_bytes());
-            }
+            put(&mut bin, m);
         }
     }
     let state = json!({

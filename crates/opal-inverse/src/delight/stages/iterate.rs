@@ -446,7 +446,7 @@ fn debug_print(o: &ObjectResult, log: &(dyn Fn(&str) + Sync)) {
 /// `Ed + Ei` with `Ei` smoothed further over resolution/16 texels (low-frequency; its
 /// Monte-Carlo noise would otherwise enter the prior's albedo estimate), or the map of
 /// [`DebugSettings::shading`](crate::delight::DebugSettings::shading). Under several processes
-/// each object is solved by one rank (balanced by texel and observing-pixel counts,
+/// each object is solved by one rank (balanced by texels plus the operator's sub-pixel rays,
 /// [`opal::dist::assign_by_cost`]), which sends the object's new maps whole to the others.
 fn superres_pass(
     inp: &Inputs,
@@ -459,13 +459,15 @@ fn superres_pass(
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
     let owner = if comm.size() > 1 {
-        // cost estimate: unknowns (texels) plus observations (pure pixels of the object)
+        // cost estimate: the size of the solve's system, unknowns (texels) plus the operator's
+        // sub-pixel rays (S² per pure pixel of the object)
+        let rays = (sr.subsamples * sr.subsamples) as usize;
         let costs: Vec<f64> = objects
             .iter()
             .map(|o| {
                 let px: usize =
                     pure.iter().map(|p| p.covered.iter().filter(|&&k| k == o.shape as u32).count()).sum();
-                (o.atlas.width * o.atlas.height + px) as f64
+                (o.atlas.width * o.atlas.height + rays * px) as f64
             })
             .collect();
         opal::dist::assign_by_cost(&costs, comm.size())
