@@ -144,7 +144,8 @@ impl opal::dist::Comm for MpiComm {
         out.clear();
         out.resize(total as usize, 0);
         let counts: Vec<Count> = lens.iter().map(|&l| l as Count).collect();
-        let displs: Vec<Count> = counts.iter().scan(0, |acc, &c| Some(std::mem::replace(acc, *acc + c))).collect();
+        let displs: Vec<Count> =
+            counts.iter().scan(0, |acc, &c| Some(std::mem::replace(acc, *acc + c))).collect();
         self.timed(|w| {
             let mut recv = PartitionMut::new(&mut out[..], &counts[..], &displs[..]);
             w.all_gather_varcount_into(mine, &mut recv);

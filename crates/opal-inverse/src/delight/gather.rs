@@ -170,8 +170,13 @@ pub fn gather_samples(
         .enumerate()
         .flat_map(|(j, o)| gather_grid(&o.atlas).into_iter().map(move |i| (j, i)))
         .collect();
-    let vals: Vec<[f32; 3]> =
-        opal::dist::map_units(comm, units.len(), |k| sample(units[k].0, units[k].1), |e, p| p.f32s(e), |u| u.rgb());
+    let vals: Vec<[f32; 3]> = opal::dist::map_units(
+        comm,
+        units.len(),
+        |k| sample(units[k].0, units[k].1),
+        |e, p| p.f32s(e),
+        |u| u.rgb(),
+    );
     let mut out = vec![Vec::new(); objects.len()];
     for (&(j, _), v) in units.iter().zip(vals) {
         out[j].push(v);
@@ -195,7 +200,8 @@ pub fn gathered_map(a: &Atlas, vals: &[[f32; 3]]) -> Vec<[f32; 3]> {
     }
     let (sv, sm) = (smooth_in_charts(&v, a, q), smooth_in_charts(&m, a, q));
     let n = vals.len().max(1) as f64;
-    let obj_mean: [f32; 3] = std::array::from_fn(|c| (vals.iter().map(|e| e[c] as f64).sum::<f64>() / n) as f32);
+    let obj_mean: [f32; 3] =
+        std::array::from_fn(|c| (vals.iter().map(|e| e[c] as f64).sum::<f64>() / n) as f32);
     (0..w * h)
         .map(|i| {
             if a.texel_tri[i] == NO_TRI {

@@ -118,7 +118,8 @@ pub fn delight(
     // unseen objects: scene-average albedo of the seen ones
     fill_unseen(&mut objects);
     // 5. iterations
-    let iterated = iterate::iterate(&inp, &mut objects, views, &pure, &mut warnings, &mut timings, &mut costs)?;
+    let iterated =
+        iterate::iterate(&inp, &mut objects, views, &pure, &mut warnings, &mut timings, &mut costs)?;
     // 6. outputs
     debug_dump(&objects, "final", s.debug.dump_dir.as_deref());
     Ok(assemble(

@@ -277,7 +277,13 @@ impl Exchange {
     /// Sends this process's accumulators `mine` (of the batches of `range` it owns, in batch
     /// order) to every rank of `c` and merges every batch of `range` into `total` in batch order,
     /// straight from the received bytes (the additions of [`Acc::merge`], in the same order).
-    fn merge(&mut self, c: &dyn crate::dist::Comm, range: std::ops::Range<u64>, mine: &[Acc], total: &mut Acc) {
+    fn merge(
+        &mut self,
+        c: &dyn crate::dist::Comm,
+        range: std::ops::Range<u64>,
+        mine: &[Acc],
+        total: &mut Acc,
+    ) {
         self.send.0.clear();
         for a in mine {
             a.pack(&mut self.send);

@@ -201,7 +201,8 @@ pub(in crate::delight) fn iterate(
             let m = out.maps[o.shape].as_ref().expect("target");
             object_pass(o, m, k, s, log)
         };
-        let post: Vec<ObjectPass> = split::per_object(comm, objects, costs, pass, ObjectPass::put, ObjectPass::get);
+        let post: Vec<ObjectPass> =
+            split::per_object(comm, objects, costs, pass, ObjectPass::put, ObjectPass::get);
         let mut texel_noise = Vec::new();
         let mut all_residuals = Vec::new();
         for p in post {

@@ -124,7 +124,9 @@ fn unwrap_one(inp: &Inputs, k: usize, cams: &[Camera]) -> Unwrapped {
             .map(|(a, u)| (a, ResolutionRule::Cameras, u))
     };
     let built = match (s.resolution, tex_res) {
-        (Some(r), _) => atlas::build_atlas(&sh.mesh, r, s.keep_uvs).map(|a| (a, ResolutionRule::Setting, None)),
+        (Some(r), _) => {
+            atlas::build_atlas(&sh.mesh, r, s.keep_uvs).map(|a| (a, ResolutionRule::Setting, None))
+        }
         (None, Some(r)) => match atlas::build_atlas(&sh.mesh, r, s.keep_uvs) {
             Ok(a) if !a.kept_uvs => from_cameras(),
             other => other.map(|a| (a, ResolutionRule::ExistingTexture, None)),
@@ -153,7 +155,13 @@ pub(in crate::delight) fn unwrap_objects(
     let cams: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
-    let built = opal::dist::map_units(comm, selected.len(), |i| unwrap_one(inp, selected[i], &cams), wire::put, wire::get);
+    let built = opal::dist::map_units(
+        comm,
+        selected.len(),
+        |i| unwrap_one(inp, selected[i], &cams),
+        wire::put,
+        wire::get,
+    );
     let mut objects = Vec::new();
     let mut skipped = Vec::new();
     for (&k, built) in selected.iter().zip(built) {
