@@ -26,6 +26,16 @@ pub trait Comm: std::fmt::Debug + Send + Sync {
     fn size(&self) -> usize;
     /// Every rank's `mine`, in rank order, on every rank.
     fn all_gather_bytes(&self, mine: &[u8]) -> Vec<Vec<u8>>;
+    /// Every rank's `mine`, concatenated in rank order into `out` (cleared first; its capacity is
+    /// kept, so a caller that reuses `out` for a series of exchanges allocates it once), on every
+    /// rank; returns each rank's length. Same bytes as [`Comm::all_gather_bytes`], without one
+    /// buffer per rank.
+    fn all_gather_into(&self, mine: &[u8], out: &mut Vec<u8>) -> Vec<usize> {
+        let all = self.all_gather_bytes(mine);
+        out.clear();
+        all.iter().for_each(|b| out.extend_from_slice(b));
+        all.iter().map(Vec::len).collect()
+    }
     /// Element-wise wrapping sum of `data` over all ranks, left on every rank.
     fn all_sum_u64(&self, data: &mut [u64]);
     /// Seconds spent in collective calls so far (communication and waiting for other ranks).
@@ -258,6 +268,29 @@ mod tests {
             assert_eq!(v, [3, u64::MAX - 2]);
             assert_eq!(owned, vec![r as u64, r as u64 + 3]);
         }
+    }
+
+    #[test]
+    fn all_gather_into_concatenates_in_rank_order_and_reuses_the_buffer() {
+        let out = ThreadComm::run(3, |c| {
+            // lengths differ by rank; a second exchange into the same buffer replaces the first
+            let mut buf = vec![9u8; 5];
+            let first = c.all_gather_into(&vec![c.rank() as u8; c.rank() + 1], &mut buf);
+            let first_bytes = buf.clone();
+            let cap = buf.capacity();
+            let second = c.all_gather_into(&[7 - c.rank() as u8], &mut buf);
+            (first, first_bytes, second, buf, cap)
+        });
+        for (first, first_bytes, second, buf, cap) in out {
+            assert_eq!(first, vec![1, 2, 3]);
+            assert_eq!(first_bytes, vec![0, 1, 1, 2, 2, 2]);
+            assert_eq!(second, vec![1, 1, 1]);
+            assert_eq!(buf, vec![7, 6, 5]);
+            assert!(buf.capacity() >= cap.min(6));
+        }
+        let mut buf = Vec::new();
+        assert_eq!(Solo.all_gather_into(&[4, 5], &mut buf), vec![2]);
+        assert_eq!(buf, vec![4, 5]);
     }
 
     #[test]

@@ -124,6 +124,34 @@ impl opal::dist::Comm for MpiComm {
             out
         })
     }
+    fn all_gather_into(&self, mine: &[u8], out: &mut Vec<u8>) -> Vec<usize> {
+        let lens = self.timed(|w| {
+            let len = mine.len() as u64;
+            let mut lens = vec![0u64; self.size];
+            w.all_gather_into(&len, &mut lens[..]);
+            lens
+        });
+        let total: u64 = lens.iter().sum();
+        let lens: Vec<usize> = lens.iter().map(|&l| l as usize).collect();
+        if total >= PIECE as u64 {
+            // offsets beyond a C int: through the pieces of `all_gather_bytes`
+            let all = self.all_gather_bytes(mine);
+            out.clear();
+            all.iter().for_each(|b| out.extend_from_slice(b));
+            return lens;
+        }
+        // one gather straight into `out` (rank r's bytes at the sum of the lengths before it)
+        out.clear();
+        out.resize(total as usize, 0);
+        let counts: Vec<Count> = lens.iter().map(|&l| l as Count).collect();
+        let displs: Vec<Count> =
+            counts.iter().scan(0, |acc, &c| Some(std::mem::replace(acc, *acc + c))).collect();
+        self.timed(|w| {
+            let mut recv = PartitionMut::new(&mut out[..], &counts[..], &displs[..]);
+            w.all_gather_varcount_into(mine, &mut recv);
+        });
+        lens
+    }
     fn all_sum_u64(&self, data: &mut [u64]) {
         self.timed(|w| {
             for piece in data.chunks_mut(PIECE) {

@@ -110,43 +110,89 @@ fn stats_json(s: &IterationStats) -> Value {
 }
 
 /// Saves the state after iteration `saved.iteration` into `dir` (created if needed).
-pub(in crate::delight) fn save(
-    dir: &Path,
+/// Saves the checkpoint after iteration `iteration` on a background thread: the state is
+/// encoded at once (the caller may change the objects afterwards), the files are written and
+/// synced to disk while the next iteration runs. A checkpoint is complete once [`Saver::wait`]
+/// returned (also before the next save, and when the saver is dropped).
+#[derive(Debug, Default)]
+pub(in crate::delight) struct Saver {
+    pending: Option<std::thread::JoinHandle<Result<()>>>,
+}
+
+impl Saver {
+    /// Waits for the previous checkpoint, then starts writing this one.
+    #[allow(clippy::too_many_arguments)]
+    pub(in crate::delight) fn save(
+        &mut self,
+        dir: &Path,
+        fingerprint: u64,
+        iteration: usize,
+        light_paths: u64,
+        objects: &[ObjectResult],
+        iterations: &[IterationStats],
+        warnings: &[String],
+    ) -> Result<()> {
+        self.wait()?;
+        std::fs::create_dir_all(dir).map_err(io(dir))?;
+        let (bin, text) = encode(fingerprint, iteration, light_paths, objects, iterations, warnings);
+        let dir = dir.to_path_buf();
+        self.pending = Some(std::thread::spawn(move || write_files(&dir, iteration, &bin, &text)));
+        Ok(())
+    }
+
+    /// Waits until the last checkpoint started is on disk; its error, if writing it failed.
+    pub(in crate::delight) fn wait(&mut self) -> Result<()> {
+        match self.pending.take() {
+            Some(h) => h.join().unwrap_or_else(|_| {
+                Err(Error::invalid("checkpoint", "the thread writing the checkpoint panicked"))
+            }),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for Saver {
+    fn drop(&mut self) {
+        // an early return (an error or an interruption) leaves no half-written checkpoint
+        let _ = self.wait();
+    }
+}
+
+/// The bytes of `maps-K.bin` and `state.json` after iteration `iteration`.
+fn encode(
     fingerprint: u64,
     iteration: usize,
     light_paths: u64,
     objects: &[ObjectResult],
     iterations: &[IterationStats],
     warnings: &[String],
-) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(io(dir))?;
-    let mut bin = Vec::new();
-    let put3 = |bin: &mut Vec<u8>, v: &[[f32; 3]]| {
-        for x in v.iter().flatten() {
-            bin.extend_from_slice(&x.to_bits().to_le_bytes());
+) -> (Vec<u8>, Vec<u8>) {
+    // little-endian f32 bits, written into a sized buffer (a loop the compiler vectorises)
+    let put = |bin: &mut Vec<u8>, v: &[f32]| {
+        let start = bin.len();
+        bin.resize(start + 4 * v.len(), 0);
+        for (d, x) in bin[start..].chunks_exact_mut(4).zip(v) {
+            d.copy_from_slice(&x.to_bits().to_le_bytes());
         }
     };
+    let mut bin = Vec::new();
     for o in objects {
-        put3(&mut bin, &o.l);
+        put(&mut bin, o.l.as_flattened());
         bin.extend(o.observed.iter().map(|&b| b as u8));
-        put3(&mut bin, &o.ei);
-        put3(&mut bin, &o.kd);
+        put(&mut bin, o.ei.as_flattened());
+        put(&mut bin, o.kd.as_flattened());
     }
     for s in iterations {
         for m in &s.error_maps {
-            for x in m {
-                bin.extend_from_slice(&x.to_bits().to_le_bytes());
-            }
+            put(&mut bin, m);
         }
     }
-    let maps = format!("maps-{iteration}.bin");
-    write_atomic(&dir.join(&maps), &bin)?;
     let state = json!({
         "version": VERSION,
         "fingerprint": format!("{fingerprint:016x}"),
         "iteration": iteration,
         "light_paths": light_paths,
-        "maps": maps,
+        "maps": maps_name(iteration),
         "objects": objects.iter().map(|o| json!({
             "id": o.id, "texels": o.l.len(), "clamped": o.clamped,
         })).collect::<Vec<_>>(),
@@ -155,10 +201,21 @@ pub(in crate::delight) fn save(
         "warnings": warnings,
     });
     let text = serde_json::to_vec_pretty(&state).expect("JSON of plain values");
-    write_atomic(&dir.join("state.json"), &text)?;
+    (bin, text)
+}
+
+fn maps_name(iteration: usize) -> String {
+    format!("maps-{iteration}.bin")
+}
+
+/// Writes the maps, then `state.json` (which makes the checkpoint the current one), then removes
+/// the maps of earlier iterations.
+fn write_files(dir: &Path, iteration: usize, bin: &[u8], text: &[u8]) -> Result<()> {
+    write_atomic(&dir.join(maps_name(iteration)), bin)?;
+    write_atomic(&dir.join("state.json"), text)?;
     // older maps are no longer referenced
     for k in 1..iteration {
-        let _ = std::fs::remove_file(dir.join(format!("maps-{k}.bin")));
+        let _ = std::fs::remove_file(dir.join(maps_name(k)));
     }
     Ok(())
 }

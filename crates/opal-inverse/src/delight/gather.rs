@@ -68,11 +68,37 @@ fn atlas_uv(a: &Atlas, tri: usize, p: opal::math::Vec3) -> Vec2 {
 
 /// Initial indirect irradiance of every object by gathering the objects' luminance maps `L`
 /// (see the module documentation): `rays` stratified cosine-weighted rays (rounded down to a
-/// square) per gather texel. Returns one map per object (covered texels filled; gutters 0).
-/// The gather texels are split across the processes of `comm` (gather texel `k` of an object on
-/// rank `k mod size`, seeded by its texel index; their values exchanged whole): every rank
-/// returns the maps one process computes, bit for bit.
+/// square) per gather texel. Returns one map per object (covered texels filled; gutters 0):
+/// [`gather_samples`], then [`gathered_map`] of each object.
 pub fn gather_indirect(
+    scene: &Scene,
+    objects: &[ObjectResult],
+    rays: u32,
+    seed: u64,
+    comm: &dyn opal::dist::Comm,
+) -> Vec<Vec<[f32; 3]>> {
+    let samples = gather_samples(scene, objects, rays, seed, comm);
+    objects.iter().zip(&samples).map(|(o, v)| gathered_map(&o.atlas, v)).collect()
+}
+
+/// Spacing of the gather texels of an atlas (every `q`-th texel in both directions).
+fn gather_spacing(a: &Atlas) -> usize {
+    a.width.max(a.height).div_ceil(128).max(1)
+}
+
+/// The gather texels of an atlas: every `q`-th texel in both directions (centre of its q×q
+/// cell), covered ones only.
+fn gather_grid(a: &Atlas) -> Vec<usize> {
+    let (w, h, q) = (a.width, a.height, gather_spacing(a));
+    (0..w * h).filter(|&i| (i % w) % q == q / 2 && (i / w) % q == q / 2 && a.texel_tri[i] != NO_TRI).collect()
+}
+
+/// The gathered irradiance at the gather texels of every object (in the order of its gather
+/// grid). The gather texels of all objects are split across the processes of `comm` in one
+/// exchange (the `k`-th gather texel over all objects on rank `k mod size`; each seeded by its
+/// object and texel index, values exchanged whole): every rank returns what one process
+/// computes, bit for bit.
+pub fn gather_samples(
     scene: &Scene,
     objects: &[ObjectResult],
     rays: u32,
@@ -100,79 +126,91 @@ pub fn gather_indirect(
         }
     }
     let mean_l = acc.map(|v| (v / aw.max(1e-30)) as f32);
-    objects
-        .iter()
-        .enumerate()
-        .map(|(j, o)| {
-            let a = &o.atlas;
-            let (w, h) = (a.width, a.height);
-            let q = w.max(h).div_ceil(128).max(1);
-            let sample = |i: usize| -> [f32; 3] {
-                let (p, ng, ns) = (a.texel_p[i], a.texel_ng[i], a.texel_n[i]);
-                let frame = Frame::from_normal(ns);
-                let mut rng = Rng::new(seed, 0x6A7E_0000 + j as u64, i as u64);
-                let mut e = [0f64; 3];
-                for k in 0..side * side {
-                    let u = Vec2::new(
-                        ((k % side) as f32 + rng.next_f32()) / side as f32,
-                        ((k / side) as f32 + rng.next_f32()) / side as f32,
-                    );
-                    let d = frame.to_world(square_to_cosine_hemisphere(u));
-                    if d.dot(ng) <= 0.0 {
-                        continue;
-                    }
-                    let Some(hit) = scene.intersect(&spawn_ray(p, ng, d)) else { continue };
-                    let sh = &scene.shapes[hit.shape as usize];
-                    if sh.emission.is_some() {
-                        continue;
-                    }
-                    let l = match of_shape[hit.shape as usize] {
-                        usize::MAX => mean_l,
-                        oj => {
-                            let b = &objects[oj].atlas;
-                            let tri = (hit.prim - sh.first_prim) as usize;
-                            if tri >= b.mesh.indices.len() {
-                                mean_l
-                            } else {
-                                bilinear(&objects[oj].l, b.width, b.height, atlas_uv(b, tri, hit.p))
-                            }
-                        }
-                    };
-                    for c in 0..3 {
-                        e[c] += l[c].max(0.0) as f64;
+    let sample = |j: usize, i: usize| -> [f32; 3] {
+        let a = &objects[j].atlas;
+        let (p, ng, ns) = (a.texel_p[i], a.texel_ng[i], a.texel_n[i]);
+        let frame = Frame::from_normal(ns);
+        let mut rng = Rng::new(seed, 0x6A7E_0000 + j as u64, i as u64);
+        let mut e = [0f64; 3];
+        for k in 0..side * side {
+            let u = Vec2::new(
+                ((k % side) as f32 + rng.next_f32()) / side as f32,
+                ((k / side) as f32 + rng.next_f32()) / side as f32,
+            );
+            let d = frame.to_world(square_to_cosine_hemisphere(u));
+            if d.dot(ng) <= 0.0 {
+                continue;
+            }
+            let Some(hit) = scene.intersect(&spawn_ray(p, ng, d)) else { continue };
+            let sh = &scene.shapes[hit.shape as usize];
+            if sh.emission.is_some() {
+                continue;
+            }
+            let l = match of_shape[hit.shape as usize] {
+                usize::MAX => mean_l,
+                oj => {
+                    let b = &objects[oj].atlas;
+                    let tri = (hit.prim - sh.first_prim) as usize;
+                    if tri >= b.mesh.indices.len() {
+                        mean_l
+                    } else {
+                        bilinear(&objects[oj].l, b.width, b.height, atlas_uv(b, tri, hit.p))
                     }
                 }
-                e.map(|v| (std::f64::consts::PI * v / (side * side) as f64) as f32)
             };
-            // gather texels: every q-th texel in both directions (centre of its q×q cell)
-            let grid: Vec<usize> = (0..w * h)
-                .filter(|&i| (i % w) % q == q / 2 && (i / w) % q == q / 2 && a.texel_tri[i] != NO_TRI)
-                .collect();
-            let vals: Vec<[f32; 3]> =
-                opal::dist::map_units(comm, grid.len(), |k| sample(grid[k]), |e, p| p.f32s(e), |u| u.rgb());
-            let mut v = vec![[0f32; 3]; w * h];
-            let mut m = vec![[0f32; 3]; w * h];
-            for (&i, e) in grid.iter().zip(&vals) {
-                v[i] = *e;
-                m[i] = [1.0; 3];
+            for c in 0..3 {
+                e[c] += l[c].max(0.0) as f64;
             }
-            // normalised box filter within charts: every covered texel gets the mean of the
-            // gather texels of its chart within q texels
-            let (sv, sm) = (smooth_in_charts(&v, a, q), smooth_in_charts(&m, a, q));
-            let n = vals.len().max(1) as f64;
-            let obj_mean: [f32; 3] =
-                std::array::from_fn(|c| (vals.iter().map(|e| e[c] as f64).sum::<f64>() / n) as f32);
-            (0..w * h)
-                .map(|i| {
-                    if a.texel_tri[i] == NO_TRI {
-                        [0.0; 3]
-                    } else if sm[i][0] > 0.0 {
-                        std::array::from_fn(|c| sv[i][c] / sm[i][0])
-                    } else {
-                        obj_mean
-                    }
-                })
-                .collect()
+        }
+        e.map(|v| (std::f64::consts::PI * v / (side * side) as f64) as f32)
+    };
+    // (object, texel) of every gather texel, objects in order
+    let units: Vec<(usize, usize)> = objects
+        .iter()
+        .enumerate()
+        .flat_map(|(j, o)| gather_grid(&o.atlas).into_iter().map(move |i| (j, i)))
+        .collect();
+    let vals: Vec<[f32; 3]> = opal::dist::map_units(
+        comm,
+        units.len(),
+        |k| sample(units[k].0, units[k].1),
+        |e, p| p.f32s(e),
+        |u| u.rgb(),
+    );
+    let mut out = vec![Vec::new(); objects.len()];
+    for (&(j, _), v) in units.iter().zip(vals) {
+        out[j].push(v);
+    }
+    out
+}
+
+/// The initial indirect irradiance map of an object from the values at its gather texels
+/// ([`gather_samples`]): a normalised box filter within charts (every covered texel gets the mean
+/// of the gather texels of its chart within `q` texels; the object's mean where there is none;
+/// gutters 0).
+pub fn gathered_map(a: &Atlas, vals: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    let (w, h, q) = (a.width, a.height, gather_spacing(a));
+    let grid = gather_grid(a);
+    assert_eq!(grid.len(), vals.len(), "one value per gather texel");
+    let mut v = vec![[0f32; 3]; w * h];
+    let mut m = vec![[0f32; 3]; w * h];
+    for (&i, e) in grid.iter().zip(vals) {
+        v[i] = *e;
+        m[i] = [1.0; 3];
+    }
+    let (sv, sm) = (smooth_in_charts(&v, a, q), smooth_in_charts(&m, a, q));
+    let n = vals.len().max(1) as f64;
+    let obj_mean: [f32; 3] =
+        std::array::from_fn(|c| (vals.iter().map(|e| e[c] as f64).sum::<f64>() / n) as f32);
+    (0..w * h)
+        .map(|i| {
+            if a.texel_tri[i] == NO_TRI {
+                [0.0; 3]
+            } else if sm[i][0] > 0.0 {
+                std::array::from_fn(|c| sv[i][c] / sm[i][0])
+            } else {
+                obj_mean
+            }
         })
         .collect()
 }

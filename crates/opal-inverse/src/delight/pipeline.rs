@@ -91,21 +91,26 @@ pub fn delight(
     let (corrected, view_gains) =
         luminance::view_gains(&inp, &objects, views, &pure, &mut warnings, &mut timings);
     let views: &[View] = corrected.as_deref().unwrap_or(views);
-    luminance::luminance_maps(&inp, &mut objects, views, &pure, &mut warnings);
+    // seconds per object of the last stage split by object (the owners of the next; MPI only)
+    let mut costs = Vec::new();
+    luminance::luminance_maps(&inp, &mut objects, views, &pure, &mut warnings, &mut costs);
     timings.push("luminance", t0.elapsed());
     cancelled(s)?;
     // initial indirect irradiance: gathered from the luminance maps (or a share of `Ed`)
     let t0 = StageClock::start();
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
+    // the gather texels of all objects split across the processes in one exchange
     let gathered =
-        (s.gather_rays > 0).then(|| gather::gather_indirect(&scene, &objects, s.gather_rays, s.seed, comm));
-    // objects split across the processes (each object's albedo by one rank, then shared)
+        (s.gather_rays > 0).then(|| gather::gather_samples(&scene, &objects, s.gather_rays, s.seed, comm));
+    // objects split across the processes (each object's gathered map and albedo by one rank,
+    // then shared)
     let g = gathered.as_ref();
     let init = |j: usize, o: &mut super::ObjectResult| {
-        initial_kd(o, s.indirect_share, avg, g.map(|g| g[j].as_slice()))
+        let map = g.map(|g| gather::gathered_map(&o.atlas, &g[j]));
+        initial_kd(o, s.indirect_share, avg, map.as_deref())
     };
-    super::split::per_object(comm, &mut objects, init, |_, _| {}, |_| ());
+    super::split::per_object(comm, &mut objects, &mut costs, init, |_, _| {}, |_| ());
     drop(gathered);
     if s.gather_rays > 0 {
         timings.push("gather", t0.elapsed());
@@ -113,7 +118,8 @@ pub fn delight(
     // unseen objects: scene-average albedo of the seen ones
     fill_unseen(&mut objects);
     // 5. iterations
-    let iterated = iterate::iterate(&inp, &mut objects, views, &pure, &mut warnings, &mut timings)?;
+    let iterated =
+        iterate::iterate(&inp, &mut objects, views, &pure, &mut warnings, &mut timings, &mut costs)?;
     // 6. outputs
     debug_dump(&objects, "final", s.debug.dump_dir.as_deref());
     Ok(assemble(

@@ -10,13 +10,19 @@
 use super::ObjectResult;
 use opal::dist::{Comm, Packer, Unpacker};
 
-/// Owner rank of each object: balanced by texel count ([`opal::dist::assign_by_cost`]); all 0
-/// for one process.
-pub(super) fn owners(comm: &dyn Comm, objects: &[ObjectResult]) -> Vec<usize> {
+/// Owner rank of each object ([`opal::dist::assign_by_cost`]): balanced by `measured` (the
+/// seconds each object took in the previous split stage, the same numbers on every rank) when it
+/// has one per object, else by texel count; all 0 for one process. The owners never change the
+/// results, only how evenly the ranks are loaded.
+pub(super) fn owners(comm: &dyn Comm, objects: &[ObjectResult], measured: &[f64]) -> Vec<usize> {
     if comm.size() == 1 {
         return vec![0; objects.len()];
     }
-    let costs: Vec<f64> = objects.iter().map(|o| (o.atlas.width * o.atlas.height) as f64).collect();
+    let costs: Vec<f64> = if measured.len() == objects.len() {
+        measured.to_vec()
+    } else {
+        objects.iter().map(|o| (o.atlas.width * o.atlas.height) as f64).collect()
+    };
     opal::dist::assign_by_cost(&costs, comm.size())
 }
 
@@ -62,26 +68,41 @@ pub(super) fn exchange_albedo(
 /// Runs `f` on every object this rank owns (objects in parallel) and shares the results: the
 /// albedo state through [`exchange_albedo`], `f`'s value through `put`/`get`. Returns every
 /// object's value, in object order; with one process `f` runs on every object and nothing is
-/// packed.
+/// packed. Under several processes the owners are balanced by `costs` ([`owners`]), which then
+/// receives the seconds `f` took on each object (measured by its owner and shared), so that the
+/// next split stage balances by them: the per-object cost varies with more than the texel count
+/// (the inpainted holes, the texels light reaches), and a rank waiting for the other at the
+/// exchange is time lost by both.
 pub(super) fn per_object<T: Send>(
     comm: &dyn Comm,
     objects: &mut [ObjectResult],
+    costs: &mut Vec<f64>,
     f: impl Fn(usize, &mut ObjectResult) -> T + Sync + Send,
     put: impl Fn(&T, &mut Packer),
     get: impl Fn(&mut Unpacker) -> T,
 ) -> Vec<T> {
     use rayon::prelude::*;
-    let owner = owners(comm, objects);
-    let mine: Vec<Option<T>> =
-        objects.par_iter_mut().enumerate().map(|(j, o)| (owner[j] == comm.rank()).then(|| f(j, o))).collect();
+    let owner = owners(comm, objects, costs);
     if comm.size() == 1 {
-        return mine.into_iter().map(|t| t.expect("one process owns every object")).collect();
+        return objects.par_iter_mut().enumerate().map(|(j, o)| f(j, o)).collect();
     }
+    let mine: Vec<Option<(T, f64)>> = objects
+        .par_iter_mut()
+        .enumerate()
+        .map(|(j, o)| {
+            (owner[j] == comm.rank()).then(|| {
+                let t0 = std::time::Instant::now();
+                let t = f(j, o);
+                (t, t0.elapsed().as_secs_f64())
+            })
+        })
+        .collect();
     let extra: Vec<Option<Vec<u8>>> = mine
         .iter()
         .map(|t| {
-            t.as_ref().map(|t| {
+            t.as_ref().map(|(t, secs)| {
                 let mut p = Packer::default();
+                p.f64(*secs);
                 put(t, &mut p);
                 p.0
             })
@@ -89,10 +110,12 @@ pub(super) fn per_object<T: Send>(
         .collect();
     drop(mine);
     let bytes = exchange_albedo(comm, objects, &owner, extra);
+    costs.clear();
     bytes
         .iter()
         .map(|b| {
             let mut u = Unpacker(b);
+            costs.push(u.f64());
             let t = get(&mut u);
             assert!(u.is_empty(), "an object's extra bytes of another kind");
             t
@@ -190,7 +213,10 @@ mod tests {
         };
         let get = |u: &mut Unpacker| (u.u64(), u.f64());
         let mut want_objects = objects();
-        let want = per_object(&Solo, &mut want_objects, stage, put, get);
+        let want = per_object(&Solo, &mut want_objects, &mut Vec::new(), stage, put, get);
+        // a second run of the stage on the updated objects (balanced by the measured seconds
+        // under several ranks)
+        let want2 = per_object(&Solo, &mut want_objects.clone(), &mut Vec::new(), stage, put, get);
         let want_state = state(&want_objects);
         assert!(want.iter().all(|t| t.0 > 0), "every object clamps some texels: {want:?}");
         assert!(
@@ -200,24 +226,50 @@ mod tests {
         for n in [1, 2, 3] {
             let out = ThreadComm::run(n, |c| {
                 let mut objs = objects();
-                let owner = owners(c, &objs);
+                let mut costs = Vec::new();
+                let owner = owners(c, &objs, &costs);
                 let calls = std::sync::Mutex::new(Vec::new());
-                let got = per_object(
-                    c,
-                    &mut objs,
-                    |j, o| {
-                        calls.lock().unwrap().push(j);
-                        stage(j, o)
-                    },
-                    put,
-                    get,
-                );
+                let traced = |j: usize, o: &mut ObjectResult| {
+                    calls.lock().unwrap().push(j);
+                    stage(j, o)
+                };
+                let got = per_object(c, &mut objs, &mut costs, traced, put, get);
                 let mut calls = calls.into_inner().unwrap();
                 calls.sort();
-                (got, state(&objs), owner, calls)
+                let st = state(&objs);
+                // again, on a copy, with the owners from the measured seconds
+                // (one process measures nothing: it owns every object)
+                let want_costs = if n > 1 { objs.len() } else { 0 };
+                assert_eq!(costs.len(), want_costs, "{n} ranks: one measured cost per object");
+                assert!(costs.iter().all(|&c| c >= 0.0 && c.is_finite()));
+                let owner2 = owners(c, &objs, &costs);
+                let mut objs2 = objs.clone();
+                let got2 = per_object(c, &mut objs2, &mut costs.clone(), stage, put, get);
+                (got, st, owner, calls, (got2, state(&objs2), owner2, costs))
             });
             let owner = &out[0].2;
-            for (r, (got, st, own, calls)) in out.iter().enumerate() {
+            let (want2_state, costs0) = (
+                state(&{
+                    let mut o = want_objects.clone();
+                    per_object(&Solo, &mut o, &mut Vec::new(), stage, put, get);
+                    o
+                }),
+                &out[0].4.3,
+            );
+            for (r, (.., (got2, st2, owner2, costs))) in out.iter().enumerate() {
+                // every rank read the same measured seconds, so they agree on the new owners
+                assert_eq!(
+                    costs.iter().map(|c| c.to_bits()).collect::<Vec<_>>(),
+                    costs0.iter().map(|c| c.to_bits()).collect::<Vec<_>>(),
+                    "{n} ranks, rank {r}"
+                );
+                assert_eq!(owner2, &out[0].4.2, "{n} ranks: rank {r} disagrees on the owners");
+                for (g, w) in got2.iter().zip(&want2) {
+                    assert_eq!((g.0, g.1.to_bits()), (w.0, w.1.to_bits()), "{n} ranks, rank {r}");
+                }
+                assert!(st2 == &want2_state, "{n} ranks: rank {r}, second run");
+            }
+            for (r, (got, st, own, calls, _)) in out.iter().enumerate() {
                 assert_eq!(own, owner, "{n} ranks: rank {r} disagrees on the owners");
                 let mine: Vec<usize> = (0..owner.len()).filter(|&j| owner[j] == r).collect();
                 assert_eq!(calls, &mine, "{n} ranks: rank {r} ran the stage on objects it does not own");
@@ -237,11 +289,11 @@ mod tests {
     #[test]
     fn owners_balance_texels() {
         let objs = objects();
-        assert_eq!(owners(&Solo, &objs), vec![0; objs.len()]);
+        assert_eq!(owners(&Solo, &objs, &[]), vec![0; objs.len()]);
         let texels: Vec<usize> = objs.iter().map(|o| o.atlas.width * o.atlas.height).collect();
         let total: usize = texels.iter().sum();
         let largest = *texels.iter().max().unwrap();
-        let owner = ThreadComm::run(2, |c| owners(c, &objs)).remove(0);
+        let owner = ThreadComm::run(2, |c| owners(c, &objs, &[])).remove(0);
         for r in 0..2 {
             let load: usize = (0..objs.len()).filter(|&j| owner[j] == r).map(|j| texels[j]).sum();
             assert!(

@@ -262,19 +262,48 @@ impl FaceModel {
     }
 }
 
-/// The accumulators of batches `range` from every rank of `c` (each holds those of the batches
-/// it owns, in batch order), in batch order.
-fn exchange(c: &dyn crate::dist::Comm, ndet: usize, range: std::ops::Range<u64>, mine: &[Acc]) -> Vec<Acc> {
-    let mut p = crate::dist::Packer::default();
-    for a in mine {
-        a.pack(&mut p);
+/// Buffers of the exchanges between processes, kept for a whole run: the accumulators of a
+/// group are ≈ 8 MB per process, and fresh buffers for every group cost page faults and copies
+/// each time.
+#[derive(Default)]
+struct Exchange {
+    /// This process's packed batch accumulators.
+    send: crate::dist::Packer,
+    /// Every process's, concatenated in rank order.
+    recv: Vec<u8>,
+}
+
+impl Exchange {
+    /// Sends this process's accumulators `mine` (of the batches of `range` it owns, in batch
+    /// order) to every rank of `c` and merges every batch of `range` into `total` in batch order,
+    /// straight from the received bytes (the additions of [`Acc::merge`], in the same order).
+    fn merge(
+        &mut self,
+        c: &dyn crate::dist::Comm,
+        range: std::ops::Range<u64>,
+        mine: &[Acc],
+        total: &mut Acc,
+    ) {
+        self.send.0.clear();
+        for a in mine {
+            a.pack(&mut self.send);
+        }
+        let lens = c.all_gather_into(&self.send.0, &mut self.recv);
+        let mut rest = &self.recv[..];
+        let mut readers: Vec<crate::dist::Unpacker> = lens
+            .iter()
+            .map(|&l| {
+                let (a, b) = rest.split_at(l);
+                rest = b;
+                crate::dist::Unpacker(a)
+            })
+            .collect();
+        let size = c.size() as u64;
+        for b in range {
+            total.merge_packed(&mut readers[(b % size) as usize]);
+        }
+        assert!(readers.iter().all(|r| r.is_empty()), "a rank sent batches of another run");
     }
-    let all = c.all_gather_bytes(&p.0);
-    let mut readers: Vec<crate::dist::Unpacker> = all.iter().map(|b| crate::dist::Unpacker(b)).collect();
-    let size = c.size() as u64;
-    let out = range.map(|b| Acc::unpack(ndet, &mut readers[(b % size) as usize])).collect();
-    assert!(readers.iter().all(|r| r.is_empty()), "a rank sent batches of another run");
-    out
 }
 
 /// Per-incidence constants of the beam.
@@ -342,21 +371,25 @@ impl Acc {
         p.u64(self.interactions);
         p.u64(self.bad);
     }
-    fn unpack(n: usize, u: &mut crate::dist::Unpacker) -> Acc {
-        let mut a = Acc::new(n);
-        for i in 0..n {
-            a.sum[i] = u.f64();
-            a.sum2[i] = u.f64();
-            a.sum_bsdf[i] = u.f64();
-            a.hits[i] = u.u64();
+    /// [`Acc::merge`] of the accumulator [`Acc::pack`] wrote (the same additions in the same
+    /// order, so the same bits), read straight from the bytes.
+    fn merge_packed(&mut self, u: &mut crate::dist::Unpacker) {
+        let n = self.sum.len();
+        let (block, rest) = u.0.split_at(32 * n);
+        for (i, d) in block.chunks_exact(32).enumerate() {
+            let x = |k: usize| u64::from_le_bytes(d[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+            self.sum[i] += f64::from_bits(x(0));
+            self.sum2[i] += f64::from_bits(x(1));
+            self.sum_bsdf[i] += f64::from_bits(x(2));
+            self.hits[i] += x(3);
         }
-        a.r = u.f64();
-        a.t = u.f64();
-        a.lost = u.f64();
-        a.absorbed = u.f64();
-        a.interactions = u.u64();
-        a.bad = u.u64();
-        a
+        u.0 = rest;
+        self.r += u.f64();
+        self.t += u.f64();
+        self.lost += u.f64();
+        self.absorbed += u.f64();
+        self.interactions += u.u64();
+        self.bad += u.u64();
     }
     fn merge(&mut self, o: &Acc) {
         for i in 0..self.sum.len() {
@@ -504,8 +537,10 @@ impl Gonio {
         let fast = if self.force_general { None } else { fast::FastPlate::new(plate) };
         let kernels = fast::Kernels::detect(self.simd);
         let mut out = Vec::with_capacity(self.setup.incidences.len());
+        let mut ex = Exchange::default();
         for (ii, &inc) in self.setup.incidences.iter().enumerate() {
-            out.push(self.run_incidence(plate, &front, &back, fast.as_ref(), kernels, ii as u64, inc, tick));
+            let faces = (&front, &back);
+            out.push(self.run_incidence(plate, faces, fast.as_ref(), kernels, ii as u64, inc, tick, &mut ex));
             if self.cancelled() {
                 return Err(crate::Error::Interrupted {
                     kept: "nothing (the simulation was not finished)".into(),
@@ -519,13 +554,13 @@ impl Gonio {
     fn run_incidence(
         &self,
         plate: &Plate,
-        front: &FaceModel,
-        back: &FaceModel,
+        (front, back): (&FaceModel, &FaceModel),
         fast: Option<&fast::FastPlate>,
         kernels: fast::Kernels,
         stream: u64,
         inc: f64,
         tick: &(dyn Fn() + Sync),
+        ex: &mut Exchange,
     ) -> IncidenceResult {
         let n = self.setup.photons;
         let nb = n.div_ceil(BATCH);
@@ -548,7 +583,7 @@ impl Gonio {
             }
             let g1 = (g0 + group).min(nb);
             let mine: Vec<u64> = (g0..g1).filter(|&b| comm.is_none_or(|c| c.owns(b))).collect();
-            let mut accs: Vec<Acc> = mine
+            let accs: Vec<Acc> = mine
                 .into_par_iter()
                 .map(|b| {
                     let mut acc = Acc::new(ndet);
@@ -575,11 +610,9 @@ impl Gonio {
                     acc
                 })
                 .collect();
-            if let Some(c) = comm {
-                accs = exchange(c, ndet, g0..g1, &accs);
-            }
-            for a in &accs {
-                total.merge(a);
+            match comm {
+                Some(c) => ex.merge(c, g0..g1, &accs, &mut total),
+                None => accs.iter().for_each(|a| total.merge(a)),
             }
             g0 = g1;
         }

@@ -84,6 +84,8 @@ impl ObjectPass {
 
 /// Runs the light-tracing iterations on `objects` (luminance, direct irradiance and initial
 /// albedo set); stage clocks `superres`, `iterations`, `light_tracing`, `iteration_post`.
+/// `costs`: the measured seconds per object of the last stage split by object
+/// ([`split::per_object`]; they balance each pass's post-processing across processes).
 pub(in crate::delight) fn iterate(
     inp: &Inputs,
     objects: &mut [ObjectResult],
@@ -91,6 +93,7 @@ pub(in crate::delight) fn iterate(
     pure: &[PureBuffer],
     warnings: &mut Vec<String>,
     timings: &mut Timings,
+    costs: &mut Vec<f64>,
 ) -> Result<Iterated> {
     let (desc, s, log) = (inp.desc, inp.s, inp.log);
     let targets: Vec<Option<IrradianceTarget>> = (0..desc.shapes.len())
@@ -114,7 +117,9 @@ pub(in crate::delight) fn iterate(
     let mut converged = false;
     let mut light_paths = 0;
     // checkpoints: the state the iterations start from, and the warnings they add
-    let fp = checkpoint::fingerprint(objects, s.seed, paths);
+    // (only a process that keeps checkpoints needs it: under MPI the ranks other than 0 keep none)
+    let fp = if s.checkpoint.is_some() { checkpoint::fingerprint(objects, s.seed, paths) } else { 0 };
+    let mut saver = checkpoint::Saver::default();
     let first_warning = warnings.len();
     let mut start = 1;
     let resume_from = match (s.resume, s.checkpoint.as_deref()) {
@@ -143,6 +148,7 @@ pub(in crate::delight) fn iterate(
     let t_it = StageClock::start();
     for k in start..=s.iterations {
         if s.cancel.as_ref().is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed)) {
+            saver.wait()?;
             return Err(Error::Interrupted { kept: kept(s, k - 1) });
         }
         let t0 = std::time::Instant::now();
@@ -170,6 +176,7 @@ pub(in crate::delight) fn iterate(
         let comm0 = comm.comm_seconds();
         let Some(out) = light_tracer::trace_split(&rscene, &targets, &lt, &|| {}, s.cancel.as_deref(), comm)
         else {
+            saver.wait()?;
             return Err(Error::Interrupted { kept: kept(s, k - 1) });
         };
         let (w, c) = c0.elapsed();
@@ -191,7 +198,8 @@ pub(in crate::delight) fn iterate(
             let m = out.maps[o.shape].as_ref().expect("target");
             object_pass(o, m, k, s, log)
         };
-        let post: Vec<ObjectPass> = split::per_object(comm, objects, pass, ObjectPass::put, ObjectPass::get);
+        let post: Vec<ObjectPass> =
+            split::per_object(comm, objects, costs, pass, ObjectPass::put, ObjectPass::get);
         let mut texel_noise = Vec::new();
         let mut all_residuals = Vec::new();
         for p in post {
@@ -257,7 +265,7 @@ pub(in crate::delight) fn iterate(
         let done = st.max_rel_error < s.tolerance;
         iterations.push(st);
         if let Some(dir) = &s.checkpoint {
-            checkpoint::save(dir, fp, k, light_paths, objects, &iterations, &warnings[first_warning..])?;
+            saver.save(dir, fp, k, light_paths, objects, &iterations, &warnings[first_warning..])?;
         }
         let (w, c) = c0.elapsed();
         post_wall += w;
@@ -267,6 +275,7 @@ pub(in crate::delight) fn iterate(
             break;
         }
     }
+    saver.wait()?;
     timings.push("iterations", t_it.elapsed());
     timings.push("light_tracing", (lt_wall, lt_cpu));
     timings.push("iteration_post", (post_wall, post_cpu));
@@ -435,7 +444,7 @@ fn debug_print(o: &ObjectResult, log: &(dyn Fn(&str) + Sync)) {
 /// `Ed + Ei` with `Ei` smoothed further over resolution/16 texels (low-frequency; its
 /// Monte-Carlo noise would otherwise enter the prior's albedo estimate), or the map of
 /// [`DebugSettings::shading`](crate::delight::DebugSettings::shading). Under several processes
-/// each object is solved by one rank (balanced by texel and observing-pixel counts,
+/// each object is solved by one rank (balanced by texels plus the operator's sub-pixel rays,
 /// [`opal::dist::assign_by_cost`]), which sends the object's new maps whole to the others.
 fn superres_pass(
     inp: &Inputs,
@@ -448,13 +457,15 @@ fn superres_pass(
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
     let owner = if comm.size() > 1 {
-        // cost estimate: unknowns (texels) plus observations (pure pixels of the object)
+        // cost estimate: the size of the solve's system, unknowns (texels) plus the operator's
+        // sub-pixel rays (S² per pure pixel of the object)
+        let rays = (sr.subsamples * sr.subsamples) as usize;
         let costs: Vec<f64> = objects
             .iter()
             .map(|o| {
                 let px: usize =
                     pure.iter().map(|p| p.covered.iter().filter(|&&k| k == o.shape as u32).count()).sum();
-                (o.atlas.width * o.atlas.height + px) as f64
+                (o.atlas.width * o.atlas.height + rays * px) as f64
             })
             .collect();
         opal::dist::assign_by_cost(&costs, comm.size())

@@ -12,8 +12,9 @@ use crate::delight::atlas::Atlas;
 use crate::delight::timing::{StageClock, Timings};
 use crate::delight::views::{PureBuffer, View};
 use crate::delight::{
-    ObjectResult, ViewGainMode, ViewGains, apply_view_gains, gains, luminance_map, superres,
+    ObjectResult, ViewGainMode, ViewGains, apply_view_gains, gains, luminance_map, split, superres,
 };
+use opal::dist::{Packer, Unpacker};
 use opal::math::Vec3;
 
 fn bbox(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
@@ -62,16 +63,29 @@ pub(in crate::delight) fn view_gains(
     (Some(c), Some(g))
 }
 
+/// One object's luminance stage as sent to the other processes (only under several).
+struct Luminance {
+    l: Vec<[f32; 3]>,
+    observed: Vec<bool>,
+    near_emitter: bool,
+    seen_fraction: f64,
+}
+
 /// Luminance map, observed mask, emitter proximity and seen fraction of every object (holes
-/// inpainted); warnings for objects or charts seen by no view.
+/// inpainted); warnings for objects or charts seen by no view. Under several processes each
+/// object is done by one rank ([`split::per_object`], balanced by `costs`, which receives the
+/// measured seconds) and sent whole to the others.
 pub(in crate::delight) fn luminance_maps(
     inp: &Inputs,
     objects: &mut [ObjectResult],
     views: &[View],
     pure: &[PureBuffer],
     warnings: &mut Vec<String>,
+    costs: &mut Vec<f64>,
 ) {
     let (scene, s, log) = (inp.scene, inp.s, inp.log);
+    let solo = opal::dist::Solo;
+    let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
     let (slo, shi) = scene.bounds();
     let diag = (shi - slo).length();
     let emit_boxes: Vec<(Vec3, Vec3)> = scene
@@ -80,7 +94,7 @@ pub(in crate::delight) fn luminance_maps(
         .filter(|s| s.emission.is_some())
         .map(|s| bbox(s.mesh.positions.iter().copied()))
         .collect();
-    for o in objects.iter_mut() {
+    let one = |_: usize, o: &mut ObjectResult| -> (usize, Option<Luminance>) {
         let (mut l, mut obs) = luminance_map(scene, o.shape as u32, &o.atlas, views, pure);
         // super-resolution here only when no light-tracing pass gives the shading (see
         // `iterate`)
@@ -108,6 +122,41 @@ pub(in crate::delight) fn luminance_maps(
             gap.length() < 0.05 * diag
         });
         let left = finish_luminance(o);
+        // a copy for the other processes only
+        let sent = (comm.size() > 1).then(|| Luminance {
+            l: o.l.clone(),
+            observed: o.observed.clone(),
+            near_emitter: o.near_emitter,
+            seen_fraction: o.seen_fraction,
+        });
+        (left, sent)
+    };
+    let put = |(left, m): &(usize, Option<Luminance>), p: &mut Packer| {
+        let m = m.as_ref().expect("the maps of an object of a split run");
+        p.u64(*left as u64);
+        p.u64(m.l.len() as u64);
+        m.l.iter().for_each(|v| p.f32s(v));
+        m.observed.iter().for_each(|&b| p.u8(b as u8));
+        p.u8(m.near_emitter as u8);
+        p.f64(m.seen_fraction);
+    };
+    let get = |u: &mut Unpacker| {
+        let left = u.u64() as usize;
+        let n = u.u64() as usize;
+        let l = (0..n).map(|_| u.rgb()).collect();
+        let observed = (0..n).map(|_| u.u8() != 0).collect();
+        let near_emitter = u.u8() != 0;
+        let seen_fraction = u.f64();
+        (left, Some(Luminance { l, observed, near_emitter, seen_fraction }))
+    };
+    let done = split::per_object(comm, objects, costs, one, put, get);
+    for (o, (left, m)) in objects.iter_mut().zip(done) {
+        if let Some(m) = m {
+            o.l = m.l;
+            o.observed = m.observed;
+            o.near_emitter = m.near_emitter;
+            o.seen_fraction = m.seen_fraction;
+        }
         if o.seen_fraction == 0.0 {
             warnings.push(format!(
                 "object '{}' is seen by no view: its albedo is the scene average (flagged)",

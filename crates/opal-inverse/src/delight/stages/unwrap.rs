@@ -6,7 +6,7 @@
 //! Tests: `tests/delight.rs`, the atlas tests in `atlas/tests.rs`.
 
 use super::Inputs;
-use crate::delight::footprint::{self, ResolutionRule};
+use crate::delight::footprint::{self, ResolutionChoice, ResolutionRule};
 use crate::delight::views::View;
 use crate::delight::{ObjectResult, atlas};
 use opal::camera::Camera;
@@ -107,8 +107,44 @@ pub(in crate::delight) fn select_objects(
     Ok((selected, left_out))
 }
 
+/// An unwrapped object: its atlas and how its resolution was chosen, or why the unwrap failed.
+type Unwrapped = std::result::Result<(atlas::Atlas, ResolutionChoice), String>;
+
+/// Atlas of shape `k` (own UVs when usable, else new charts) and its resolution choice.
+fn unwrap_one(inp: &Inputs, k: usize, cams: &[Camera]) -> Unwrapped {
+    let (desc, s) = (inp.desc, inp.s);
+    let sh = &desc.shapes[k];
+    let samples = footprint::surface_footprints(inp.scene, &sh.mesh, cams);
+    // an object that keeps its UVs and already has a square bitmap texture gets a texture
+    // of the same size (the recovered map replaces it texel for texel); otherwise from the
+    // cameras
+    let tex_res = existing_texture_size(&sh.bsdf).filter(|&(w, h)| w == h && s.keep_uvs).map(|(w, _)| w);
+    let from_cameras = || {
+        footprint::camera_atlas(&sh.mesh, &samples, s.keep_uvs, s.max_resolution)
+            .map(|(a, u)| (a, ResolutionRule::Cameras, u))
+    };
+    let built = match (s.resolution, tex_res) {
+        (Some(r), _) => {
+            atlas::build_atlas(&sh.mesh, r, s.keep_uvs).map(|a| (a, ResolutionRule::Setting, None))
+        }
+        (None, Some(r)) => match atlas::build_atlas(&sh.mesh, r, s.keep_uvs) {
+            Ok(a) if !a.kept_uvs => from_cameras(),
+            other => other.map(|a| (a, ResolutionRule::ExistingTexture, None)),
+        },
+        (None, None) => from_cameras(),
+    };
+    built
+        .map(|(a, rule, unclamped)| {
+            let c = footprint::resolution_choice(rule, unclamped, &samples, &a);
+            (a, c)
+        })
+        .map_err(|e| e.to_string())
+}
+
 /// Atlases of the `selected` shapes: the recovered objects (maps zeroed) and the skipped ones
-/// (id, reason; also pushed to `warnings`).
+/// (id, reason; also pushed to `warnings`). Under several processes the shapes are split across
+/// them (shape `i` of the selection on rank `i mod size`) and each atlas is sent whole to the
+/// others ([`wire`]).
 pub(in crate::delight) fn unwrap_objects(
     inp: &Inputs,
     selected: &[usize],
@@ -117,33 +153,19 @@ pub(in crate::delight) fn unwrap_objects(
 ) -> (Vec<ObjectResult>, Vec<(String, String)>) {
     let (desc, s, log) = (inp.desc, inp.s, inp.log);
     let cams: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
+    let solo = opal::dist::Solo;
+    let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
+    let built = opal::dist::map_units(
+        comm,
+        selected.len(),
+        |i| unwrap_one(inp, selected[i], &cams),
+        wire::put,
+        wire::get,
+    );
     let mut objects = Vec::new();
     let mut skipped = Vec::new();
-    for &k in selected {
+    for (&k, built) in selected.iter().zip(built) {
         let sh = &desc.shapes[k];
-        let samples = footprint::surface_footprints(inp.scene, &sh.mesh, &cams);
-        // an object that keeps its UVs and already has a square bitmap texture gets a texture
-        // of the same size (the recovered map replaces it texel for texel); otherwise from the
-        // cameras
-        let tex_res = existing_texture_size(&sh.bsdf).filter(|&(w, h)| w == h && s.keep_uvs).map(|(w, _)| w);
-        let from_cameras = || {
-            footprint::camera_atlas(&sh.mesh, &samples, s.keep_uvs, s.max_resolution)
-                .map(|(a, u)| (a, ResolutionRule::Cameras, u))
-        };
-        let built = match (s.resolution, tex_res) {
-            (Some(r), _) => {
-                atlas::build_atlas(&sh.mesh, r, s.keep_uvs).map(|a| (a, ResolutionRule::Setting, None))
-            }
-            (None, Some(r)) => match atlas::build_atlas(&sh.mesh, r, s.keep_uvs) {
-                Ok(a) if !a.kept_uvs => from_cameras(),
-                other => other.map(|a| (a, ResolutionRule::ExistingTexture, None)),
-            },
-            (None, None) => from_cameras(),
-        };
-        let built = built.map(|(a, rule, unclamped)| {
-            let c = footprint::resolution_choice(rule, unclamped, &samples, &a);
-            (a, c)
-        });
         match built {
             Ok((a, resolution)) => {
                 let n = a.width * a.height;
@@ -182,6 +204,128 @@ pub(in crate::delight) fn unwrap_objects(
         }
     }
     (objects, skipped)
+}
+
+/// An unwrapped object as bytes between processes (every float as its bits: exact).
+mod wire {
+    use super::Unwrapped;
+    use crate::delight::atlas::Atlas;
+    use crate::delight::footprint::{ResolutionChoice, ResolutionRule};
+    use opal::dist::{Packer, Unpacker};
+    use opal::geometry::TriangleMesh;
+    use opal::math::{Vec2, Vec3};
+
+    fn vec3s(p: &mut Packer, v: &[Vec3]) {
+        p.u64(v.len() as u64);
+        v.iter().for_each(|x| p.f32s(&[x.x, x.y, x.z]));
+    }
+    fn get_vec3s(u: &mut Unpacker) -> Vec<Vec3> {
+        (0..u.u64()).map(|_| Vec3::new(u.f32(), u.f32(), u.f32())).collect()
+    }
+    fn u32s(p: &mut Packer, v: &[u32]) {
+        p.u64(v.len() as u64);
+        v.iter().for_each(|&x| p.0.extend_from_slice(&x.to_le_bytes()));
+    }
+    fn get_u32s(u: &mut Unpacker) -> Vec<u32> {
+        (0..u.u64()).map(|_| u.f32().to_bits()).collect()
+    }
+    fn f32s(p: &mut Packer, v: &[f32]) {
+        p.u64(v.len() as u64);
+        p.f32s(v);
+    }
+    fn get_f32s(u: &mut Unpacker) -> Vec<f32> {
+        (0..u.u64()).map(|_| u.f32()).collect()
+    }
+    fn opt(p: &mut Packer, x: Option<f64>) {
+        p.u8(x.is_some() as u8);
+        p.f64(x.unwrap_or(0.0));
+    }
+    fn get_opt(u: &mut Unpacker) -> Option<f64> {
+        let some = u.u8() != 0;
+        let x = u.f64();
+        some.then_some(x)
+    }
+
+    /// Writes an unwrapped object (or its error).
+    pub(super) fn put(x: &Unwrapped, p: &mut Packer) {
+        let (a, c) = match x {
+            Ok(ac) => ac,
+            Err(e) => {
+                p.u8(0);
+                p.str(e);
+                return;
+            }
+        };
+        p.u8(1);
+        p.u64(a.width as u64);
+        p.u64(a.height as u64);
+        vec3s(p, &a.mesh.positions);
+        vec3s(p, &a.mesh.normals);
+        p.u64(a.mesh.uvs.len() as u64);
+        a.mesh.uvs.iter().for_each(|t| p.f32s(&[t.x, t.y]));
+        u32s(p, &a.mesh.indices.iter().flatten().copied().collect::<Vec<u32>>());
+        p.u8(a.kept_uvs as u8);
+        p.u64(a.charts as u64);
+        u32s(p, &a.tri_chart);
+        f32s(p, &a.texel_area);
+        u32s(p, &a.texel_tri);
+        vec3s(p, &a.texel_p);
+        vec3s(p, &a.texel_n);
+        vec3s(p, &a.texel_ng);
+        u32s(p, &a.texel_owner);
+        f32s(p, &a.coverage);
+        p.u8(match c.rule {
+            ResolutionRule::Cameras => 0,
+            ResolutionRule::Setting => 1,
+            ResolutionRule::ExistingTexture => 2,
+        });
+        opt(p, c.unclamped);
+        opt(p, c.pixel_density);
+        opt(p, c.texel_density);
+        p.f64(c.seen_area_fraction);
+    }
+
+    /// Reads what [`put`] wrote.
+    pub(super) fn get(u: &mut Unpacker) -> Unwrapped {
+        if u.u8() == 0 {
+            return Err(u.str());
+        }
+        let width = u.u64() as usize;
+        let height = u.u64() as usize;
+        let positions = get_vec3s(u);
+        let normals = get_vec3s(u);
+        let uvs = (0..u.u64()).map(|_| Vec2::new(u.f32(), u.f32())).collect();
+        let flat = get_u32s(u);
+        let indices = flat.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+        let a = Atlas {
+            width,
+            height,
+            mesh: TriangleMesh { positions, normals, uvs, indices },
+            kept_uvs: u.u8() != 0,
+            charts: u.u64() as usize,
+            tri_chart: get_u32s(u),
+            texel_area: get_f32s(u),
+            texel_tri: get_u32s(u),
+            texel_p: get_vec3s(u),
+            texel_n: get_vec3s(u),
+            texel_ng: get_vec3s(u),
+            texel_owner: get_u32s(u),
+            coverage: get_f32s(u),
+        };
+        let rule = match u.u8() {
+            0 => ResolutionRule::Cameras,
+            1 => ResolutionRule::Setting,
+            _ => ResolutionRule::ExistingTexture,
+        };
+        let c = ResolutionChoice {
+            rule,
+            unclamped: get_opt(u),
+            pixel_density: get_opt(u),
+            texel_density: get_opt(u),
+            seen_area_fraction: u.f64(),
+        };
+        Ok((a, c))
+    }
 }
 
 #[cfg(test)]
