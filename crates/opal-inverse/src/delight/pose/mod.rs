@@ -11,7 +11,10 @@
 //! contact of a box with the floor) pin the poses; the textures add the fine registration.
 //! The alignment of one view is [`solve::align_view`] (Levenberg–Marquardt on the Huber-weighted
 //! luminance residual with a free exposure scale, coarse to fine over Gaussian blurs of 4, 2, 1
-//! px, re-rendering the prediction at each accepted step).
+//! px, rendering the prediction at each step tried; a level stops on a step below
+//! [`PoseSettings::step_tolerance_px`], the rounds before the last on one below
+//! [`PoseSettings::round_step_tolerance_px`]). The maps of a round are built in `maps.rs`: each
+//! view samples every texel once, and the map of view `k` sums the others' samples.
 //!
 //! Rounds: all views are aligned against maps from the poses of the previous round (Jacobi);
 //! the second round re-aligns against maps built from the corrected poses of the other views.
@@ -56,7 +59,8 @@
 //! Tests: `solve.rs` (one view against an exact textured room: 0.05–0.5° and 0.1–1 % of the
 //! scene size refined to within 0.02° and 0.05 %); `tests.rs` here (multi-view end to end
 //! through the leave-one-out prediction, exact views stay,
-//! `common_motion_of_all_views_recovered`: all six views moved together by 0.25° and ~1 px);
+//! `common_motion_of_all_views_recovered`: all six views moved together by 0.25° and ~1 px;
+//! `loo_maps_match_luminance_map`: the round's maps bit for bit those of `luminance_map`);
 //! `tests/delight_room.rs` (`mitsuba_room_perturbed_poses`, ignored: the Mitsuba room with
 //! every camera perturbed); `extrapolate.rs` (the first-order fill).
 

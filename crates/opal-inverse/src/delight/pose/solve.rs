@@ -9,8 +9,11 @@
 //! ray hits at `θ` (so `π_θ(X_p) = p`), `Δ = (ω, δ)` a rotation vector and a translation in the
 //! camera's frame (`to_world ← to_world · [R(ω) | δ]`) and `s` a free scale (the exposure of the
 //! photo against the prediction). The Jacobian is the photo's gradient times the projection's
-//! derivative; each accepted step re-renders `P` at the new pose (the occlusion edges move with
-//! it). Robust weights: Huber with the scale 1.4826 × median |r| (re-estimated per
+//! derivative; each step tried renders `P` at its pose (the occlusion edges move with it), and
+//! the render of the accepted one serves the next iteration, the next level and the edge system
+//! (each pose is rendered once). A level stops when a step, accepted or rejected, moves the
+//! image by less than [`AlignSettings::step_tolerance_px`] (scaled by the level's blur over the
+//! finest one's): a damped step only shrinks from there. Robust weights: Huber with the scale 1.4826 × median |r| (re-estimated per
 //! iteration). Pixels are used where the blurred prediction is supported by defined pixels over
 //! ≥ 99 % of its Gaussian weight (a prediction cut at an undefined neighbour is not the blur of
 //! the photo).
