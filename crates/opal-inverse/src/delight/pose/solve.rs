@@ -13,8 +13,8 @@
 //! the render of the accepted one serves the next iteration, the next level and the edge system
 //! (each pose is rendered once). A level stops when a step, accepted or rejected, moves the
 //! image by less than [`AlignSettings::step_tolerance_px`] (scaled by the level's blur over the
-//! finest one's): a damped step only shrinks from there. Robust weights: Huber with the scale 1.4826 × median |r| (re-estimated per
-//! iteration). Pixels are used where the blurred prediction is supported by defined pixels over
+//! finest one's): a damped step only shrinks from there. Robust weights: Huber with the scale
+//! 1.4826 × median |r| (re-estimated per iteration). Pixels are used where the blurred prediction is supported by defined pixels over
 //! ≥ 99 % of its Gaussian weight (a prediction cut at an undefined neighbour is not the blur of
 //! the photo).
 //!
