@@ -23,8 +23,8 @@
 //!   true cameras before and after and each view's steps per round; `OPAL_POSE_PRIOR_PX=<px>|off`
 //!   and `OPAL_POSE_PIVOT=scene|camera` override the prior and the pivot (`PoseSettings`);
 //!   `OPAL_POSE_JOINT=on|off`, `OPAL_POSE_FINE_MARGIN`, `OPAL_POSE_LINEAR_BANDS`,
-//!   `OPAL_POSE_DELIGHT_MARGIN`, `OPAL_POSE_FINE_SIGMAS=2,1`, `OPAL_POSE_STEP_TOL`,
-//!   `OPAL_POSE_ROUNDS` the other settings; `OPAL_POSE_AMOUNT=<x>` scales the perturbation (0:
+//!   `OPAL_POSE_DELIGHT_MARGIN`, `OPAL_POSE_FINE_SIGMAS=2,1`, `OPAL_POSE_STEP_TOL` and
+//!   `OPAL_POSE_ROUND_STEP_TOL` (pixels), `OPAL_POSE_ROUNDS` the other settings; `OPAL_POSE_AMOUNT=<x>` scales the perturbation (0:
 //!   the exact poses, refined all the same). Measured: docs/delight.md, "Pose refinement", and
 //!   docs/decisions/delight-pose-refinement.md.
 //!
@@ -313,8 +313,11 @@ fn mitsuba_room_perturbed_poses() {
         Ok(other) => panic!("OPAL_POSE_JOINT: unknown {other}"),
         Err(_) => {}
     }
+    if let Ok(v) = std::env::var("OPAL_POSE_ROUND_STEP_TOL") {
+        poses.round_step_tolerance_px = v.parse().expect("OPAL_POSE_ROUND_STEP_TOL: pixels");
+    }
     if let Ok(v) = std::env::var("OPAL_POSE_STEP_TOL") {
-        poses.step_tolerance = v.parse().expect("OPAL_POSE_STEP_TOL: radians");
+        poses.step_tolerance_px = v.parse().expect("OPAL_POSE_STEP_TOL: pixels");
     }
     if let Ok(v) = std::env::var("OPAL_POSE_FINE_MARGIN") {
         poses.fine_edge_margin = v.parse().expect("OPAL_POSE_FINE_MARGIN");

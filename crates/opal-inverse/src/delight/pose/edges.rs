@@ -4,10 +4,9 @@
 //!
 //! Tests: `tests.rs` (`common_motion_of_all_views_recovered`).
 
-use super::render::{Prediction, SurfaceKey, blur, render_prediction};
+use super::render::{Prediction, SurfaceKey, blur};
 use super::solve::{Level, huber, projection_jacobian};
 use opal::camera::Camera;
-use opal::scene::{Scene, SurfaceInteraction};
 use rayon::prelude::*;
 
 /// Gauss–Newton normal equations of the *geometric edges* of one view (camera frame: rotation
@@ -60,24 +59,18 @@ fn within_surface_gradient(
         .unzip()
 }
 
-/// Normal equations of the residual of view `cam` (blurred photo `lv` at `sigma`, scale `s`)
+/// Normal equations of the residual of view `cam` (its prediction `pr`, blurred photo `lv` at
+/// `sigma`, scale `s`)
 /// for a motion under which the *textures* of the prediction move with the view and only its
 /// geometric edges (changes of shape or plane) stay: the Jacobian of a pixel is
 /// `s · ∇P_edge · ∂p/∂θ`, with `∇P_edge` the gradient of the blurred prediction minus the blur
 /// of its gradient within each surface. This is the motion of all views together (their
 /// textures shift alike), which only the geometry constrains.
-pub(super) fn edge_system(
-    lv: &Level,
-    scene: &Scene,
-    cam: &Camera,
-    predict: &(dyn Fn(&SurfaceInteraction) -> Option<f32> + Sync),
-    sigma: f64,
-    scale: f64,
-) -> EdgeSystem {
+pub(super) fn edge_system(lv: &Level, cam: &Camera, pr: &Prediction, sigma: f64, scale: f64) -> EdgeSystem {
     let (w, h) = (lv.w, lv.h);
-    let Prediction { p, hits, keys, mixed } = render_prediction(scene, cam, predict);
-    let (pb, sup) = blur(&p, w, h, sigma);
-    let (gx0, gy0) = within_surface_gradient(&p, &keys, &mixed, w, h);
+    let Prediction { p, hits, keys, mixed } = pr;
+    let (pb, sup) = blur(p, w, h, sigma);
+    let (gx0, gy0) = within_surface_gradient(p, keys, mixed, w, h);
     let (gxt, gyt) = (blur(&gx0, w, h, sigma).0, blur(&gy0, w, h, sigma).0);
     let pl = Level { w, h, y: pb };
     let to_cam = cam.to_world.as_dmat4().inverse();

@@ -19,12 +19,12 @@
 //!
 //! Tests: `tests.rs` (`six_perturbed_views_refined_against_each_other`, `exact_views_stay`).
 
-use super::render::{blur, render_prediction};
+use super::render::{Prediction, blur};
 use super::solve::{Level, huber, projection_jacobian};
 use crate::delight::views::{MIXED, PureBuffer};
 use opal::camera::Camera;
 use opal::math::{DMat4, DVec3};
-use opal::scene::{Scene, SurfaceInteraction};
+use opal::scene::Scene;
 use rayon::prelude::*;
 
 /// One residual of [`JointRows`]: value, Jacobian in the own pose, Jacobians in other views'
@@ -83,21 +83,18 @@ fn grad_at(lv: &Level, qx: f64, qy: f64) -> Option<(f64, f64)> {
 }
 
 /// The rows of view `k` at camera `cam` (its aligned pose): blurred photo `lv`, prediction
-/// `predict` (the leave-one-out maps of the round), fitted scale `s`, blur `sigma`; cross
-/// terms from `others`.
-#[allow(clippy::too_many_arguments)]
+/// `pr` rendered at `cam` (from the leave-one-out maps of the round), fitted scale `s`, blur
+/// `sigma`; cross terms from `others`.
 pub(super) fn view_rows(
     k: usize,
-    scene: &Scene,
     cam: &Camera,
     lv: &Level,
-    predict: &(dyn Fn(&SurfaceInteraction) -> Option<f32> + Sync),
+    pr: &Prediction,
     s: f64,
     sigma: f64,
     others: &[Other],
 ) -> JointRows {
     let (w, h) = (cam.width, cam.height);
-    let pr = render_prediction(scene, cam, predict);
     let (pb, sup) = blur(&pr.p, w, h, sigma);
     let to_cam = cam.to_world.as_dmat4().inverse();
     let (tx, ty) = (cam.tan_half_x as f64, cam.tan_half_y as f64);

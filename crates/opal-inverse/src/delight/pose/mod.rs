@@ -11,7 +11,10 @@
 //! contact of a box with the floor) pin the poses; the textures add the fine registration.
 //! The alignment of one view is [`solve::align_view`] (Levenberg–Marquardt on the Huber-weighted
 //! luminance residual with a free exposure scale, coarse to fine over Gaussian blurs of 4, 2, 1
-//! px, re-rendering the prediction at each accepted step).
+//! px, rendering the prediction at each step tried; a level stops on a step below
+//! [`PoseSettings::step_tolerance_px`], the rounds before the last on one below
+//! [`PoseSettings::round_step_tolerance_px`]). The maps of a round are built in `maps.rs`: each
+//! view samples every texel once, and the map of view `k` sums the others' samples.
 //!
 //! Rounds: all views are aligned against maps from the poses of the previous round (Jacobi);
 //! the second round re-aligns against maps built from the corrected poses of the other views.
@@ -56,23 +59,24 @@
 //! Tests: `solve.rs` (one view against an exact textured room: 0.05–0.5° and 0.1–1 % of the
 //! scene size refined to within 0.02° and 0.05 %); `tests.rs` here (multi-view end to end
 //! through the leave-one-out prediction, exact views stay,
-//! `common_motion_of_all_views_recovered`: all six views moved together by 0.25° and ~1 px);
+//! `common_motion_of_all_views_recovered`: all six views moved together by 0.25° and ~1 px;
+//! `loo_maps_match_luminance_map`: the round's maps bit for bit those of `luminance_map`);
 //! `tests/delight_room.rs` (`mitsuba_room_perturbed_poses`, ignored: the Mitsuba room with
 //! every camera perturbed); `extrapolate.rs` (the first-order fill).
 
 mod edges;
 mod extrapolate;
 mod joint;
+mod maps;
 mod render;
 pub mod solve;
 #[cfg(test)]
 mod tests;
 
-use super::atlas::{Atlas, NO_TRI};
+use super::atlas::Atlas;
 use super::luminance;
-use super::observe::luminance_map;
 use super::views::{self, PureBuffer, View};
-use opal::math::{DMat4, DVec3, Vec3};
+use opal::math::{DMat4, DVec3};
 use opal::scene::{Scene, SurfaceInteraction};
 use rayon::prelude::*;
 pub use solve::{AlignSettings, Alignment, PoseDof, align_view, camera_with, compose};
@@ -167,9 +171,14 @@ pub struct PoseSettings {
     /// came from (`joint.rs`); the common motion is then not applied separately (the joint
     /// step contains it).
     pub joint: bool,
-    /// An alignment level stops when a step rotates by less than this (radians) and moves the
-    /// camera by less than this × the mean depth ([`AlignSettings::step_tolerance`]).
-    pub step_tolerance: f64,
+    /// An alignment level stops when a step moves the image by less than this many pixels
+    /// ([`AlignSettings::step_tolerance_px`]; the coarser levels scale it by their blur).
+    pub step_tolerance_px: f64,
+    /// [`Self::step_tolerance_px`] in the rounds before the last: their alignments are against
+    /// maps from the other views' poses of the previous round, themselves a fraction of a pixel
+    /// off, and the next round starts from them again; converging them further than that only
+    /// costs renders.
+    pub round_step_tolerance_px: f64,
 }
 
 impl Default for PoseSettings {
@@ -193,7 +202,8 @@ impl Default for PoseSettings {
             prior_px: None,
             pivot_at_scene: false,
             joint: true,
-            step_tolerance: 2e-6,
+            step_tolerance_px: 0.005,
+            round_step_tolerance_px: 0.02,
         }
     }
 }
@@ -285,61 +295,6 @@ impl PoseReport {
     }
 }
 
-/// Looks up the luminance map `l` (observed texels `obs`) of an atlas at a surface point of
-/// its shape (`local` = the triangle's index in the shape's mesh).
-fn lookup(a: &Atlas, l: &[f32], obs: &[bool], local: usize, p: Vec3) -> Option<f32> {
-    if local >= a.mesh.triangle_count() {
-        return None;
-    }
-    let [p0, p1, p2] = a.mesh.triangle(local).map(|v| v.as_dvec3());
-    let p = p.as_dvec3();
-    let (e1, e2, d) = (p1 - p0, p2 - p0, p - p0);
-    let n = e1.cross(e2);
-    let nn = n.length_squared();
-    if nn <= 0.0 {
-        return None;
-    }
-    let b1 = d.cross(e2).dot(n) / nn;
-    let b2 = e1.cross(d).dot(n) / nn;
-    let b0 = 1.0 - b1 - b2;
-    // the atlas mesh is the shape's own mesh (same triangles, seams split): check it
-    if b0 < -1e-3
-        || b1 < -1e-3
-        || b2 < -1e-3
-        || (d.dot(n) / nn.sqrt()).abs() > 1e-3 * e1.length().max(e2.length())
-    {
-        return None;
-    }
-    let idx = a.mesh.indices[local];
-    let uv = a.mesh.uvs[idx[0] as usize].as_dvec2() * b0
-        + a.mesh.uvs[idx[1] as usize].as_dvec2() * b1
-        + a.mesh.uvs[idx[2] as usize].as_dvec2() * b2;
-    let chart = a.tri_chart[local];
-    let (x, y) = (uv.x * a.width as f64 - 0.5, uv.y * a.height as f64 - 0.5);
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let (mut acc, mut wsum) = (0.0, 0.0);
-    for (dx, dy, w) in
-        [(0, 0, (1.0 - fx) * (1.0 - fy)), (1, 0, fx * (1.0 - fy)), (0, 1, (1.0 - fx) * fy), (1, 1, fx * fy)]
-    {
-        let (xi, yi) = (x0 as i64 + dx, y0 as i64 + dy);
-        if xi < 0 || yi < 0 || xi >= a.width as i64 || yi >= a.height as i64 {
-            continue;
-        }
-        let i = yi as usize * a.width + xi as usize;
-        if a.texel_tri[i] == NO_TRI
-            || a.tri_chart[a.texel_tri[i] as usize] != chart
-            || !obs[i]
-            || !l[i].is_finite()
-        {
-            continue;
-        }
-        acc += w * l[i] as f64;
-        wsum += w;
-    }
-    (wsum >= 0.5).then(|| (acc / wsum) as f32)
-}
-
 /// `pb` with every pixel within `r` pixels (Chebyshev) of a pixel of another shape or plane
 /// (or a mixed pixel) marked [`views::MIXED`].
 pub fn erode(pb: &PureBuffer, r: usize) -> PureBuffer {
@@ -379,83 +334,6 @@ fn erode_with(pb: &PureBuffer, r: usize, min_cos: impl Fn(usize, usize) -> f32 +
     PureBuffer { width: w, height: h, shape, normal: pb.normal.clone(), min_cos: pb.min_cos.clone(), covered }
 }
 
-/// Luminance map of one object from `views` (pure buffers `pure`, eroded), extended over the
-/// texels within 48 texels of an observed texel of the same chart (the texels within
-/// `linear_bands` to first order); returns the luminance and where it is defined: the extended
-/// texels, or with `linear_domain` (and `linear_bands` > 0) only the observed texels and those
-/// the first-order fill reached.
-fn edge_free_map(
-    scene: &Scene,
-    shape: u32,
-    a: &Atlas,
-    views: &[View],
-    pure: &[PureBuffer],
-    linear_bands: usize,
-    linear_domain: bool,
-) -> (Vec<f32>, Vec<bool>) {
-    let (l, obs) = luminance_map(scene, shape, a, views, pure);
-    extend_map(a, l, obs, linear_bands, linear_domain)
-}
-
-/// The extension of [`edge_free_map`] of the map `l` (observed texels `obs`) of atlas `a`.
-fn extend_map(
-    a: &Atlas,
-    mut l: Vec<[f32; 3]>,
-    obs: Vec<bool>,
-    linear_bands: usize,
-    linear_domain: bool,
-) -> (Vec<f32>, Vec<bool>) {
-    let (w, h) = (a.width, a.height);
-    let n = w * h;
-    let chart: Vec<u32> = (0..n).map(|i| a.texel_chart(i)).collect();
-    let covered: Vec<bool> = (0..n).map(|i| a.texel_tri[i] != NO_TRI).collect();
-    // texels within reach of an observed one (4-neighbour steps inside the chart)
-    let reach = 48;
-    let mut dist = vec![usize::MAX; n];
-    let mut queue = std::collections::VecDeque::new();
-    for i in 0..n {
-        if obs[i] {
-            dist[i] = 0;
-            queue.push_back(i);
-        }
-    }
-    while let Some(i) = queue.pop_front() {
-        if dist[i] >= reach {
-            continue;
-        }
-        let (x, y) = (i % w, i / w);
-        let mut nb = Vec::with_capacity(4);
-        if x > 0 {
-            nb.push(i - 1);
-        }
-        if x + 1 < w {
-            nb.push(i + 1);
-        }
-        if y > 0 {
-            nb.push(i - w);
-        }
-        if y + 1 < h {
-            nb.push(i + w);
-        }
-        for j in nb {
-            if covered[j] && chart[j] == chart[i] && dist[j] == usize::MAX {
-                dist[j] = dist[i] + 1;
-                queue.push_back(j);
-            }
-        }
-    }
-    let mut domain: Vec<bool> = dist.iter().map(|&d| d != usize::MAX).collect();
-    super::inpaint::inpaint(&mut l, &obs, &domain, &chart, w, h, 3);
-    let mut lum: Vec<f32> = l.iter().map(|&c| luminance(c)).collect();
-    if linear_bands > 0 {
-        let filled = extrapolate::extrapolate_linear(&mut lum, &obs, &dist, &chart, w, h, linear_bands);
-        if linear_domain {
-            domain = (0..n).map(|i| obs[i] || filled[i]).collect();
-        }
-    }
-    (lum, domain)
-}
-
 /// Rotation vector (radians) of a rotation matrix.
 fn rotation_vector(r: glam::DMat3) -> DVec3 {
     let q = glam::DQuat::from_mat3(&r);
@@ -493,7 +371,7 @@ pub fn refine_poses(
         max_iterations: s.max_iterations,
         edge_system: s.common_motion,
         pivot_at_scene: s.pivot_at_scene,
-        step_tolerance: s.step_tolerance,
+        step_tolerance_px: s.step_tolerance_px,
         ..Default::default()
     };
     let mut steps_px: Vec<Vec<f64>> = vec![Vec::new(); views.len()];
@@ -543,20 +421,21 @@ pub fn refine_poses(
         let start = poses.clone();
         let mut next = poses.clone();
         let mut edges: Vec<Option<solve::EdgeSystem>> = vec![None; views.len()];
+        // leave-one-out maps: every other active view
+        let loo = maps::leave_one_out_maps(
+            scene,
+            objects,
+            &current,
+            &pure,
+            &active,
+            s.linear_bands,
+            fine && s.linear_domain,
+        );
         for k in 0..views.len() {
-            // leave-one-out maps: every other active view
-            let others: Vec<usize> = (0..views.len()).filter(|&j| j != k && active[j]).collect();
-            if others.is_empty() {
+            let Some(maps) = &loo[k] else {
                 continue;
-            }
-            let ov: Vec<View> = others.iter().map(|&j| current[j].clone()).collect();
-            let op: Vec<PureBuffer> = others.iter().map(|&j| pure[j].clone()).collect();
-            let maps: Vec<(Vec<f32>, Vec<bool>)> = objects
-                .par_iter()
-                .map(|&(shape, a)| {
-                    edge_free_map(scene, shape, a, &ov, &op, s.linear_bands, fine && s.linear_domain)
-                })
-                .collect();
+            };
+            let others: Vec<usize> = (0..views.len()).filter(|&j| j != k && active[j]).collect();
             let eye = current[k].camera.origin();
             let predict = |si: &SurfaceInteraction| -> Option<f32> {
                 // an emitter's front shows its known radiance: an outline no view misplaces
@@ -565,7 +444,7 @@ pub fn refine_poses(
                 }
                 let j = objects.iter().position(|&(sh, _)| sh == si.shape)?;
                 let local = (si.prim - scene.shapes[si.shape as usize].first_prim) as usize;
-                lookup(objects[j].1, &maps[j].0, &maps[j].1, local, si.p)
+                maps::lookup(objects[j].1, &maps[j].0, &maps[j].1, local, si.p)
             };
             // rotation only before the last round: the orbit direction (a rotation and a
             // translation that nearly cancel at the depth of the scene) is weakly constrained and
@@ -575,13 +454,16 @@ pub fn refine_poses(
                 Some(f) if fine => f.clone(),
                 _ => s.sigmas.clone(),
             };
+            let last_round = round + 1 >= s.rounds.max(1);
             let align = AlignSettings {
                 dof: if rot_only { PoseDof::Rotation } else { dof },
                 sigmas,
+                step_tolerance_px: if last_round { s.step_tolerance_px } else { s.round_step_tolerance_px },
                 prior: s.prior_px.map(|sigma_px| solve::PosePrior { to_world: given[k], sigma_px }),
                 ..align.clone()
             };
-            let fit = align_view(scene, &current[k].camera, &photos[k], &predict, &align);
+            let (fit, at_fit) =
+                solve::align_view_rendered(scene, &current[k].camera, &photos[k], &predict, &align);
             iterations[k] += fit.iterations;
             let (ang, dist) = solve_error(poses[k], fit.to_world);
             log(&format!(
@@ -607,8 +489,9 @@ pub fn refine_poses(
                     })
                     .collect();
                 let cam = camera_with(&current[k].camera, fit.to_world);
-                joint_rows
-                    .push(joint::view_rows(k, scene, &cam, &levels[k], &predict, fit.scale, sigma_fine, &ol));
+                // the prediction at the aligned pose (rendered by the alignment unless no level ran)
+                let pr = at_fit.unwrap_or_else(|| render::render_prediction(scene, &cam, &predict));
+                joint_rows.push(joint::view_rows(k, &cam, &levels[k], &pr, fit.scale, sigma_fine, &ol));
             }
             next[k] = fit.to_world;
             edges[k] = fit.edges.clone();
@@ -641,7 +524,8 @@ pub fn refine_poses(
             let npar = if rot_only || dof == PoseDof::Rotation { 3 } else { 6 };
             let since: Vec<[f64; 6]> =
                 (0..views.len()).map(|j| joint::camera_frame_move(start[j], poses[j])).collect();
-            if let Some(d) = joint::joint_step(&joint_rows, &since, views.len(), npar) {
+            let jstep = joint::joint_step(&joint_rows, &since, views.len(), npar);
+            if let Some(d) = jstep {
                 for k in 0..views.len() {
                     if active[k] && joint_rows.iter().any(|r| r.k == k) {
                         let m = compose(

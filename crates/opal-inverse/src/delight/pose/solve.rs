@@ -9,9 +9,12 @@
 //! ray hits at `θ` (so `π_θ(X_p) = p`), `Δ = (ω, δ)` a rotation vector and a translation in the
 //! camera's frame (`to_world ← to_world · [R(ω) | δ]`) and `s` a free scale (the exposure of the
 //! photo against the prediction). The Jacobian is the photo's gradient times the projection's
-//! derivative; each accepted step re-renders `P` at the new pose (the occlusion edges move with
-//! it). Robust weights: Huber with the scale 1.4826 × median |r| (re-estimated per
-//! iteration). Pixels are used where the blurred prediction is supported by defined pixels over
+//! derivative; each step tried renders `P` at its pose (the occlusion edges move with it), and
+//! the render of the accepted one serves the next iteration, the next level and the edge system
+//! (each pose is rendered once). A level stops when a step, accepted or rejected, moves the
+//! image by less than [`AlignSettings::step_tolerance_px`] (scaled by the level's blur over the
+//! finest one's): a damped step only shrinks from there. Robust weights: Huber with the scale
+//! 1.4826 × median |r| (re-estimated per iteration). Pixels are used where the blurred prediction is supported by defined pixels over
 //! ≥ 99 % of its Gaussian weight (a prediction cut at an undefined neighbour is not the blur of
 //! the photo).
 //!
@@ -36,7 +39,7 @@
 pub use super::edges::EdgeSystem;
 use super::edges::edge_system;
 pub use super::render::blur;
-use super::render::render_prediction;
+use super::render::{Prediction, render_prediction};
 use opal::camera::Camera;
 use opal::math::{DMat4, DVec3};
 use opal::scene::{Scene, SurfaceInteraction};
@@ -60,9 +63,12 @@ pub struct AlignSettings {
     pub sigmas: Vec<f64>,
     /// Maximum LM iterations per level.
     pub max_iterations: usize,
-    /// Stop a level when a step rotates by less than this (radians) and moves the camera by
-    /// less than this × the mean depth.
-    pub step_tolerance: f64,
+    /// Stop the finest level when a step moves the image by less than this many pixels: it
+    /// rotates by less than this × the pixel angle and moves the camera by less than this × the
+    /// pixel footprint at the mean depth — accepted, or rejected (the damped steps only shrink
+    /// from there). The coarser levels scale it by their blur over the finest one's (they only
+    /// bring the pose within the next level's reach).
+    pub step_tolerance_px: f64,
     /// Also return the geometric-edge normal equations at the refined pose
     /// ([`Alignment::edges`]).
     pub edge_system: bool,
@@ -94,7 +100,7 @@ impl Default for AlignSettings {
             dof: PoseDof::Full,
             sigmas: vec![4.0, 2.0, 1.0],
             max_iterations: 12,
-            step_tolerance: 2e-6,
+            step_tolerance_px: 0.005,
             edge_system: false,
             pivot_at_scene: false,
             prior: None,
@@ -367,6 +373,19 @@ pub fn align_view(
     predict: &(dyn Fn(&SurfaceInteraction) -> Option<f32> + Sync),
     s: &AlignSettings,
 ) -> Alignment {
+    align_view_rendered(scene, cam, photo, predict, s).0
+}
+
+/// [`align_view`], also returning the prediction rendered at the aligned pose (`None` when no
+/// level ran). Each pose's prediction is rendered once: the next level, the edge system (and
+/// the caller's joint rows) reuse the render of the accepted step.
+pub(super) fn align_view_rendered(
+    scene: &Scene,
+    cam: &Camera,
+    photo: &[f32],
+    predict: &(dyn Fn(&SurfaceInteraction) -> Option<f32> + Sync),
+    s: &AlignSettings,
+) -> (Alignment, Option<Prediction>) {
     let (w, h) = (cam.width, cam.height);
     let mut pose = cam.to_world.as_dmat4();
     let mut scale = 1.0f64;
@@ -374,6 +393,8 @@ pub fn align_view(
     let mut converged = false;
     let (mut rms_before, mut rms_after, mut pixels) = (f64::NAN, f64::NAN, 0);
     let mut edges = None;
+    // the prediction at `pose` (camera `camera_with(cam, pose)`), once rendered
+    let mut current: Option<Prediction> = None;
     let n_par = if s.dof == PoseDof::Full { 6 } else { 3 };
     let (mut pivot, mut angle_px, mut foot_px): (Option<DVec3>, f64, f64) = (None, 1.0, 1.0);
     let rel = |rows: &[(f64, [f64; 7])], mean: f64| {
@@ -396,13 +417,14 @@ pub fn align_view(
     for (li, &sigma) in s.sigmas.iter().enumerate() {
         let last = li + 1 == s.sigmas.len();
         let lv = Level { w, h, y: blur(photo, w, h, sigma).0 };
-        let eval = |pose: DMat4, scale: f64| {
-            let c = camera_with(cam, pose);
-            let pr = render_prediction(scene, &c, predict);
+        let lin_at = |pr: &Prediction, pose: DMat4, scale: f64| {
             let (pb, sup) = blur(&pr.p, w, h, sigma);
-            linearise(&lv, &pb, &sup, &pr.hits, &c, pose, scale)
+            linearise(&lv, &pb, &sup, &pr.hits, &camera_with(cam, pose), pose, scale)
         };
-        let mut lin = eval(pose, scale);
+        let render = |pose: DMat4| render_prediction(scene, &camera_with(cam, pose), predict);
+        let pr = current.take().unwrap_or_else(|| render(pose));
+        let mut lin = lin_at(&pr, pose, scale);
+        current = Some(pr);
         if lin.rows.len() < 50 {
             converged = false;
             break;
@@ -438,6 +460,9 @@ pub fn align_view(
                 0.5 * noise * noise * kappa * r.iter().map(|x| x * x).sum::<f64>() / rows.len().max(1) as f64
             })
         };
+        // this level's step tolerance (rotation, radians; translation over the depth)
+        let tol =
+            s.step_tolerance_px * angle_px * sigma / s.sigmas.last().copied().unwrap_or(sigma).max(1e-9);
         let mut lambda = 1e-3;
         converged = false;
         let mut it = 0;
@@ -493,18 +518,24 @@ pub fn align_view(
                 let delta = if n_par == 6 { DVec3::new(d[3], d[4], d[5]) } else { DVec3::ZERO };
                 let new_pose = compose_about(pose, omega, delta, c_piv);
                 let new_scale = scale + d[k - 1];
-                let cand = eval(new_pose, new_scale);
-                if cand.rows.len() >= 50
-                    && cost(&cand.rows, c) + prior_cost(new_pose, &cand.rows, noise) <= c0
-                {
+                let pr = render(new_pose);
+                let cand = lin_at(&pr, new_pose, new_scale);
+                let ok = cand.rows.len() >= 50
+                    && cost(&cand.rows, c) + prior_cost(new_pose, &cand.rows, noise) <= c0;
+                if ok {
                     pose = new_pose;
                     scale = new_scale;
                     lin = cand;
+                    current = Some(pr);
                     lambda = (lambda * 0.3).max(1e-7);
                     accepted = true;
-                    if omega.length() < s.step_tolerance && delta.length() < s.step_tolerance * lin.depth {
+                    if omega.length() < tol && delta.length() < tol * lin.depth {
                         converged = true;
                     }
+                    break;
+                }
+                if omega.length() < tol && delta.length() < tol * lin.depth {
+                    // a rejected step below the tolerance: at the minimum to that precision
                     break;
                 }
                 lambda *= 10.0;
@@ -521,11 +552,16 @@ pub fn align_view(
             rms_after = rel(&lin.rows, lin.mean_pred);
             pixels = lin.rows.len();
             if s.edge_system {
-                edges = Some(edge_system(&lv, scene, &camera_with(cam, pose), predict, sigma, scale));
+                if let Some(pr) = &current {
+                    edges = Some(edge_system(&lv, &camera_with(cam, pose), pr, sigma, scale));
+                }
             }
         }
     }
-    Alignment { to_world: pose, iterations, converged, pixels, rms_before, rms_after, scale, edges }
+    (
+        Alignment { to_world: pose, iterations, converged, pixels, rms_before, rms_after, scale, edges },
+        current,
+    )
 }
 
 #[cfg(test)]

@@ -1,10 +1,12 @@
 //! Multi-view pose refinement through the leave-one-out prediction (see the module docs).
 
+use super::maps::{extend_map, leave_one_out_maps};
 use super::solve::tests::{camera, perturb, photo, pose_error, room};
 use super::*;
-use crate::delight::atlas::build_atlas;
+use crate::delight::atlas::{NO_TRI, build_atlas};
+use crate::delight::observe::luminance_map;
 use opal::image::Image;
-use opal::math::DVec3;
+use opal::math::{DVec3, Vec3};
 use opal::spectrum::Spectrum;
 
 fn views_of(scene: &Scene, eyes: &[Vec3], res: usize) -> Vec<View> {
@@ -189,5 +191,40 @@ fn linear_domain_limits_the_map_to_the_first_order_fill() {
     for i in (0..w * h).filter(|&i| narrow[i] && band(i)) {
         let want = 0.2 + 0.001 * (i % w) as f32;
         assert!((lum[i] - want).abs() < 1e-3, "texel {i}: {} vs {want}", lum[i]);
+    }
+}
+
+/// The leave-one-out maps from the per-round samples are, bit for bit, the extended
+/// [`luminance_map`] of the other active views (an inactive view feeds no map and still gets
+/// one; a view with no other active view gets none).
+#[test]
+fn loo_maps_match_luminance_map() {
+    let (scene, truth, atlases, _) = setup();
+    let views = &truth[..4];
+    let pure: Vec<PureBuffer> =
+        views.iter().map(|v| erode(&views::pure_buffer(&scene, &v.camera), 1)).collect();
+    let objects: Vec<(u32, &Atlas)> = atlases.iter().enumerate().map(|(k, a)| (k as u32, a)).collect();
+    for active in [vec![true; 4], vec![true, false, true, true], vec![true, false, false, false]] {
+        let loo = leave_one_out_maps(&scene, &objects, views, &pure, &active, 8, true);
+        for k in 0..views.len() {
+            let others: Vec<usize> = (0..views.len()).filter(|&j| j != k && active[j]).collect();
+            if others.is_empty() {
+                assert!(loo[k].is_none(), "view {k}: a map without another view");
+                continue;
+            }
+            let got = loo[k].as_ref().expect("a map from the other views");
+            let ov: Vec<View> = others.iter().map(|&j| views[j].clone()).collect();
+            let op: Vec<PureBuffer> = others.iter().map(|&j| pure[j].clone()).collect();
+            for (o, &(shape, a)) in objects.iter().enumerate() {
+                let (l, obs) = luminance_map(&scene, shape, a, &ov, &op);
+                assert!(obs.iter().any(|&b| b), "view {k}, object {o}: nothing observed");
+                let (lum, dom) = extend_map(a, l, obs, 8, true);
+                assert_eq!(dom, got[o].1, "view {k}, object {o}: domain");
+                assert!(
+                    lum.iter().zip(&got[o].0).all(|(x, y)| x.to_bits() == y.to_bits()),
+                    "view {k}, object {o}: luminance differs"
+                );
+            }
+        }
     }
 }
