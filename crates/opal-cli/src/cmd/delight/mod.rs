@@ -379,7 +379,9 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     } else {
         DelightSettings { checkpoint: None, debug: Default::default(), ..settings }
     };
-    let (views, vwarn, working) = read_working_views(a, &desc, &settings, log)?;
+    let t_read = StageClock::start();
+    let (views, vwarn, mut working) = read_working_views(a, &desc, &settings, log)?;
+    working.read = (t_read.elapsed(), opal_inverse::delight::rss_mb());
     for w in &vwarn {
         log(&format!("warning: {w}"));
     }
@@ -416,6 +418,8 @@ pub struct Working {
     pub photo_sizes: Vec<[usize; 2]>,
     /// The report entry.
     pub json: serde_json::Value,
+    /// Reading the views: (wall, CPU) seconds and the resident memory (now, peak) in MB after.
+    pub read: ((f64, f64), (f64, f64)),
 }
 
 /// Reads the views at their working size: `--max-view-pixels N` (0 = as they are), else the
@@ -481,7 +485,7 @@ fn read_working_views(
             .with_context(|| format!("cannot read the views {}", a.views.display()))?;
         (v, w, limit, sizes, j)
     };
-    Ok((views, vwarn, Working { limit, photo_sizes, json: wjson }))
+    Ok((views, vwarn, Working { limit, photo_sizes, json: wjson, read: ((0.0, 0.0), (0.0, 0.0)) }))
 }
 
 /// Debug outputs of the de-lighting from the diagnostic switches (error-analysis hooks of
@@ -823,6 +827,13 @@ fn write_outputs(
             (k.clone(), json!({"rss_at_end": finite_or_null(*now), "peak_so_far": finite_or_null(*peak)}))
         })
         .collect();
+    let ((rw, rc), (rnow, rpeak)) = working.read;
+    timings.insert("read_views".into(), json!(rw));
+    cpu.insert("read_views".into(), json!(rc));
+    memory.insert(
+        "read_views".into(),
+        json!({"rss_at_end": finite_or_null(rnow), "peak_so_far": finite_or_null(rpeak)}),
+    );
     let (now, peak) = opal_inverse::delight::rss_mb();
     memory.insert(
         "outputs_and_rerenders".into(),
