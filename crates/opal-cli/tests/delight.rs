@@ -68,7 +68,13 @@ fn tiny_run(dir: &Path) -> (PathBuf, serde_json::Value) {
 
 /// As [`tiny_run`] on `scene` with `extra` arguments.
 fn tiny_run_with(dir: &Path, scene: &Path, extra: &[&str]) -> (PathBuf, serde_json::Value) {
-    let tj = make_views(dir, 3, 24);
+    tiny_run_sized(dir, scene, extra, 24)
+}
+
+/// As [`tiny_run_with`] with views of `res`² (the report judges regions of ≥ 64 pixels whose
+/// 8 neighbours are in the region: 24² views of the box have none).
+fn tiny_run_sized(dir: &Path, scene: &Path, extra: &[&str], res: usize) -> (PathBuf, serde_json::Value) {
+    let tj = make_views(dir, 3, res);
     let out = dir.join("out");
     let mut args = vec![
         "delight",
@@ -97,7 +103,7 @@ fn tiny_run_with(dir: &Path, scene: &Path, extra: &[&str]) -> (PathBuf, serde_js
 #[test]
 fn tiny_run_writes_everything_and_scene_loads() {
     let tmp = tempfile::tempdir().unwrap();
-    let (out, report) = tiny_run(tmp.path());
+    let (out, report) = tiny_run_sized(tmp.path(), &cbox(), &[], 32);
     let tj = tmp.path().join("transforms.json");
     // --json prints report.json: the key sets documented in docs/delight.md
     let keys = [
@@ -667,7 +673,7 @@ fn max_view_pixels_works_from_downsampled_views() {
     assert!(mem.contains_key("total"));
 }
 
-/// The defaults: no `--max-view-pixels` gives the automatic working size (views of 24² are
+/// The defaults: no `--max-view-pixels` gives the automatic working size (views of 32² are
 /// below its floor of 256² pixels: kept as they are, with the reason and the texel estimate in
 /// report.json); `--max-view-pixels 0` keeps the photos on request. The re-render samples
 /// follow `--rerender-noise`: a view whose noisiest judged region is above the target after
@@ -675,7 +681,7 @@ fn max_view_pixels_works_from_downsampled_views() {
 #[test]
 fn default_working_size_and_rerender_noise() {
     let tmp = tempfile::tempdir().unwrap();
-    let (_, report) = tiny_run_with(tmp.path(), &cbox(), &["--rerender-noise", "0.01"]);
+    let (_, report) = tiny_run_sized(tmp.path(), &cbox(), &["--rerender-noise", "0.01"], 32);
     let w = &report["working_size"];
     assert_eq!(w["rule"], "auto");
     assert_eq!(w["reason"], "min_working_pixels");
@@ -701,7 +707,7 @@ fn default_working_size_and_rerender_noise() {
             assert_eq!(spp, 4);
         }
     }
-    assert!(raised > 0, "4 spp on 24² views: some region above 1 %");
+    assert!(raised > 0, "4 spp on 32² views: some region above 1 %");
     let tmp = tempfile::tempdir().unwrap();
     let (_, report) =
         tiny_run_with(tmp.path(), &cbox(), &["--max-view-pixels", "0", "--rerender-noise", "0"]);
