@@ -68,7 +68,13 @@ fn tiny_run(dir: &Path) -> (PathBuf, serde_json::Value) {
 
 /// As [`tiny_run`] on `scene` with `extra` arguments.
 fn tiny_run_with(dir: &Path, scene: &Path, extra: &[&str]) -> (PathBuf, serde_json::Value) {
-    let tj = make_views(dir, 3, 24);
+    tiny_run_sized(dir, scene, extra, 24)
+}
+
+/// As [`tiny_run_with`] with views of `res`² (the report judges regions of ≥ 64 pixels whose
+/// 8 neighbours are in the region: 24² views of the box have none).
+fn tiny_run_sized(dir: &Path, scene: &Path, extra: &[&str], res: usize) -> (PathBuf, serde_json::Value) {
+    let tj = make_views(dir, 3, res);
     let out = dir.join("out");
     let mut args = vec![
         "delight",
@@ -97,7 +103,7 @@ fn tiny_run_with(dir: &Path, scene: &Path, extra: &[&str]) -> (PathBuf, serde_js
 #[test]
 fn tiny_run_writes_everything_and_scene_loads() {
     let tmp = tempfile::tempdir().unwrap();
-    let (out, report) = tiny_run(tmp.path());
+    let (out, report) = tiny_run_sized(tmp.path(), &cbox(), &[], 32);
     let tj = tmp.path().join("transforms.json");
     // --json prints report.json: the key sets documented in docs/delight.md
     let keys = [
@@ -122,6 +128,8 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "cpu_seconds",
         "memory_mb",
         "view_sizes",
+        "photo_sizes",
+        "working_size",
         "outputs",
         "view_error_range",
         "texel_error_range",
@@ -647,6 +655,8 @@ fn max_view_pixels_works_from_downsampled_views() {
     for r in report["rerenders"].as_array().unwrap() {
         assert_eq!(r["size"], serde_json::json!([12, 12]));
     }
+    assert_eq!(report["working_size"]["rule"], "setting");
+    assert_eq!(report["photo_sizes"][0], serde_json::json!([24, 24]));
     // the photos as read: the mean of a coarse view is that of the full one (box filter)
     let (full, _) = opal_inverse::delight::views::read_views(&tmp.path().join("transforms.json")).unwrap();
     let (coarse, _) =
@@ -666,6 +676,51 @@ fn max_view_pixels_works_from_downsampled_views() {
         assert!(m["peak_so_far"].as_f64().unwrap() >= m["rss_at_end"].as_f64().unwrap(), "{k}: {m}");
     }
     assert!(mem.contains_key("total"));
+}
+
+/// The defaults: no `--max-view-pixels` gives the automatic working size (views of 32² are
+/// below its floor of 256² pixels: kept as they are, with the reason and the texel estimate in
+/// report.json); `--max-view-pixels 0` keeps the photos on request. The re-render samples
+/// follow `--rerender-noise`: a view whose noisiest judged region is above the target after
+/// `--rerender-spp` gets more samples (at most 16×) and a lower noise; 0 keeps the given count.
+#[test]
+fn default_working_size_and_rerender_noise() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (_, report) = tiny_run_sized(tmp.path(), &cbox(), &["--rerender-noise", "0.01"], 32);
+    let w = &report["working_size"];
+    assert_eq!(w["rule"], "auto");
+    assert_eq!(w["reason"], "min_working_pixels");
+    assert!(w["max_view_pixels"].is_null());
+    assert!(w["texels_estimated_full_size"].as_f64().unwrap() > 0.0);
+    assert_eq!(w["texels_estimated_full_size"], w["texels_estimated_working_size"]);
+    assert!(report["settings"]["max_view_pixels"].is_null());
+    assert_eq!(report["view_sizes"], report["photo_sizes"]);
+    let mut raised = 0;
+    for r in report["rerenders"].as_array().unwrap() {
+        let (spp, first, now) = (
+            r["spp"].as_u64().unwrap(),
+            r["max_region_rel_stderr_at_first_spp"].as_f64().unwrap(),
+            r["max_region_rel_stderr"].as_f64().unwrap(),
+        );
+        assert!((4..=64).contains(&spp), "{spp}");
+        if first > 0.01 {
+            // noise ∝ 1/√spp: the target is reached unless the 16× cap stops it
+            raised += 1;
+            assert!(spp > 4 && now < first, "{spp}: {first} → {now}");
+            assert!(now <= 0.01 * 1.5 || spp == 64, "{spp}: {now}");
+        } else {
+            assert_eq!(spp, 4);
+        }
+    }
+    assert!(raised > 0, "4 spp on 32² views: some region above 1 %");
+    let tmp = tempfile::tempdir().unwrap();
+    let (_, report) =
+        tiny_run_with(tmp.path(), &cbox(), &["--max-view-pixels", "0", "--rerender-noise", "0"]);
+    assert_eq!(report["working_size"]["rule"], "full_size_on_request");
+    assert_eq!(report["settings"]["max_view_pixels"], 0);
+    for r in report["rerenders"].as_array().unwrap() {
+        assert_eq!(r["spp"], 4);
+    }
 }
 
 #[test]

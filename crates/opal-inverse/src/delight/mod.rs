@@ -78,6 +78,7 @@ pub mod superres;
 mod superres_diag;
 mod timing;
 pub mod views;
+pub mod working_size;
 
 pub use direct::{MAX_LIGHTS_PER_TEXEL, PENUMBRA_DILATION, direct_irradiance};
 pub use gains::{ViewGain, ViewGainMode, ViewGainSettings, ViewGains, apply_view_gains};

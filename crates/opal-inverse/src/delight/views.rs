@@ -63,10 +63,22 @@ pub fn read_views(path: &Path) -> Result<(Vec<View>, Vec<String>)> {
     read_views_limited(path, None)
 }
 
-/// [`read_views`] with each view downsampled to at most `max_pixels` pixels as soon as it is
-/// read ([`super::downsample::downsample_view`]): only one full-size image is held at a time.
-/// The bad-pixel warnings count the pixels of the file.
-pub fn read_views_limited(path: &Path, max_pixels: Option<usize>) -> Result<(Vec<View>, Vec<String>)> {
+/// One frame of a `transforms.json`: the image file, its pose and field of view, and its size
+/// (from `w`/`h`, or from the image when they are not given).
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// Image file.
+    pub path: PathBuf,
+    /// Sensor (Mitsuba conventions) of the full-size image.
+    pub sensor: SensorDesc,
+    /// Whether the size is given by `w`/`h` (then checked against the image when it is read).
+    pub size_given: bool,
+}
+
+/// Reads the frames of `transforms.json` without keeping any image: a frame without `w`/`h` has
+/// its image read once for its size (and dropped). Missing images and malformed entries are
+/// errors.
+pub fn read_frames(path: &Path) -> Result<Vec<Frame>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let j: serde_json::Value = serde_json::from_str(&text).map_err(|e| Error::Parse {
         path: path.to_path_buf(),
@@ -82,8 +94,7 @@ pub fn read_views_limited(path: &Path, max_pixels: Option<usize>) -> Result<(Vec
     if frames.is_empty() {
         return Err(Error::invalid(path.display().to_string(), "'frames' is empty"));
     }
-    let mut views = Vec::new();
-    let mut warnings = Vec::new();
+    let mut out = Vec::new();
     for (k, f) in frames.iter().enumerate() {
         let what = |field: &str| format!("frames[{k}].{field}");
         let fov = f.get("camera_angle_x").or_else(|| j.get("camera_angle_x")).ok_or_else(|| {
@@ -143,16 +154,49 @@ pub fn read_views_limited(path: &Path, max_pixels: Option<usize>) -> Result<(Vec
                 format!("image {} does not exist", img_path.display()),
             ));
         }
-        let mut image = opal::image::read::read_image(&img_path)?;
         let fw = f.get("w").or_else(|| j.get("w")).and_then(|v| v.as_u64());
         let fh = f.get("h").or_else(|| j.get("h")).and_then(|v| v.as_u64());
-        if let (Some(w), Some(h)) = (fw, fh) {
-            if (w as usize, h as usize) != (image.width, image.height) {
-                return Err(Error::invalid(
-                    img_path.display().to_string(),
-                    format!("image is {}×{} but {} says {w}×{h}", image.width, image.height, path.display()),
-                ));
+        let (width, height, size_given) = match (fw, fh) {
+            (Some(w), Some(h)) => (w as usize, h as usize, true),
+            _ => {
+                let im = opal::image::read::read_image(&img_path)?;
+                (im.width, im.height, false)
             }
+        };
+        let sensor = SensorDesc {
+            id: img_path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| format!("view_{k}")),
+            to_world: opengl_to_mitsuba(gl),
+            fov_x_deg: fov.to_degrees() as f32,
+            width,
+            height,
+            near_clip: 1e-3,
+            far_clip: 1e6,
+            spp: None,
+        };
+        out.push(Frame { path: img_path, sensor, size_given });
+    }
+    Ok(out)
+}
+
+/// [`read_views`] with each view downsampled to at most `max_pixels` pixels as soon as it is
+/// read ([`super::downsample::downsample_view`]): only one full-size image is held at a time.
+/// The bad-pixel warnings count the pixels of the file.
+pub fn read_views_limited(path: &Path, max_pixels: Option<usize>) -> Result<(Vec<View>, Vec<String>)> {
+    let frames = read_frames(path)?;
+    let mut views = Vec::new();
+    let mut warnings = Vec::new();
+    for fr in frames {
+        let img_path = fr.path;
+        let mut image = opal::image::read::read_image(&img_path)?;
+        let (w, h) = (fr.sensor.width, fr.sensor.height);
+        if fr.size_given && (w, h) != (image.width, image.height) {
+            return Err(Error::invalid(
+                img_path.display().to_string(),
+                format!("image is {}×{} but {} says {w}×{h}", image.width, image.height, path.display()),
+            ));
         }
         let mut bad = 0;
         for p in &mut image.data {
@@ -167,19 +211,7 @@ pub fn read_views_limited(path: &Path, max_pixels: Option<usize>) -> Result<(Vec
                 img_path.display()
             ));
         }
-        let desc = SensorDesc {
-            id: img_path
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| format!("view_{k}")),
-            to_world: opengl_to_mitsuba(gl),
-            fov_x_deg: fov.to_degrees() as f32,
-            width: image.width,
-            height: image.height,
-            near_clip: 1e-3,
-            far_clip: 1e6,
-            spp: None,
-        };
+        let desc = SensorDesc { width: image.width, height: image.height, ..fr.sensor };
         let view = View {
             name: desc.id.clone(),
             path: img_path,

@@ -65,12 +65,15 @@ pub struct DelightArgs {
     /// Upper clamp of `--resolution auto`: 4096 (default) up to 8192.
     #[arg(long, default_value_t = 4096)]
     pub max_resolution: usize,
-    /// Work from views of at most this many pixels (0 = the photos as they are): a larger photo
-    /// is box-filtered onto a coarser film of the same frustum as it is read (only one full-size
-    /// photo is in memory at a time). The texture resolution follows the coarse pixels; photos
-    /// and re-renders are compared at the coarse size.
-    #[arg(long, default_value_t = 0)]
-    pub max_view_pixels: usize,
+    /// Work from views of at most this many pixels; 0 = the photos as they are; default: an
+    /// automatic working size (the views box-filtered to where the texture resolution from the
+    /// pixels fits the texels that 20 M light paths per pass serve at the target noise, at least
+    /// 256² pixels; docs/delight.md "Photo resolution"). A larger photo is box-filtered onto a
+    /// coarser film of the same frustum as it is read (only one full-size photo is in memory at
+    /// a time). The texture resolution follows the coarse pixels; photos and re-renders are
+    /// compared at the coarse size.
+    #[arg(long)]
+    pub max_view_pixels: Option<usize>,
     /// Unwrap every object even when its own UVs are usable.
     #[arg(long)]
     pub unwrap_all: bool,
@@ -80,6 +83,11 @@ pub struct DelightArgs {
     /// Samples per pixel of the re-renders (0 = no re-render).
     #[arg(long, default_value_t = 64)]
     pub rerender_spp: u32,
+    /// Target relative standard error of each judged region's re-rendered mean luminance: a view
+    /// whose noisiest region (≥ 64 pixels) is above it after `--rerender-spp` samples gets more,
+    /// up to 16 × `--rerender-spp` (0 = `--rerender-spp` only).
+    #[arg(long, default_value_t = 0.004)]
+    pub rerender_noise: f64,
     /// Luminance maps: `superres` (all views inverted jointly with a total-variation prior,
     /// sharper than the pixels) or `backproject` (each texel samples each view).
     #[arg(long, default_value = "superres")]
@@ -264,22 +272,6 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     for w in &desc.warnings {
         log(&format!("warning: {w}"));
     }
-    let (views, vwarn) = if a.views.is_dir() {
-        // a COLMAP text model (cameras.txt, images.txt); images beside it or in ../images
-        let images = [a.views.join("images"), a.views.join("../images")]
-            .into_iter()
-            .find(|d| d.is_dir())
-            .unwrap_or_else(|| a.views.clone());
-        let (v, w) = opal_inverse::delight::colmap::read_colmap(&a.views, &images)
-            .with_context(|| format!("cannot read the COLMAP model {}", a.views.display()))?;
-        (v.into_iter().map(|v| downsample_view(v, a.max_view_pixels)).collect(), w)
-    } else {
-        read_views_limited(&a.views, (a.max_view_pixels > 0).then_some(a.max_view_pixels))
-            .with_context(|| format!("cannot read the views {}", a.views.display()))?
-    };
-    for w in &vwarn {
-        log(&format!("warning: {w}"));
-    }
     let resolution = if a.resolution == "auto" {
         None
     } else {
@@ -367,7 +359,7 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         light_paths,
         resolution,
         max_resolution: a.max_resolution,
-        max_view_pixels: (a.max_view_pixels > 0).then_some(a.max_view_pixels),
+        max_view_pixels: a.max_view_pixels.filter(|&m| m > 0),
         seed: a.seed,
         keep_uvs: !a.unwrap_all,
         update,
@@ -387,6 +379,13 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
     } else {
         DelightSettings { checkpoint: None, debug: Default::default(), ..settings }
     };
+    let t_read = StageClock::start();
+    let (views, vwarn, mut working) = read_working_views(a, &desc, &settings, log)?;
+    working.read = (t_read.elapsed(), opal_inverse::delight::rss_mb());
+    for w in &vwarn {
+        log(&format!("warning: {w}"));
+    }
+    let settings = DelightSettings { max_view_pixels: working.limit, ..settings };
     let r = delight(&desc, &views, &settings, log)?;
     for w in &r.warnings {
         log(&format!("warning: {w}"));
@@ -411,7 +410,85 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         Some(g) => apply_view_gains(&views, g),
         None => views,
     };
-    write_outputs(a, &desc, &views, &r, &vwarn, log)
+    write_outputs(a, &desc, &views, &r, &vwarn, &working, log)
+}
+
+/// The working size of the views and why (report.json `working_size`).
+pub struct Working {
+    /// Per-view pixel limit (`None`: the photos as they are).
+    pub limit: Option<usize>,
+    /// The photos' own sizes.
+    pub photo_sizes: Vec<[usize; 2]>,
+    /// The report entry.
+    pub json: serde_json::Value,
+    /// Reading the views: (wall, CPU) seconds and the resident memory (now, peak) in MB after.
+    pub read: ((f64, f64), (f64, f64)),
+}
+
+/// Reads the views at their working size: `--max-view-pixels N` (0 = as they are), else the
+/// automatic size from the cameras (read before any image; `opal_inverse::delight::working_size`).
+/// Each photo is box-filtered as it is read (a COLMAP model's photos after all are read).
+fn read_working_views(
+    a: &DelightArgs,
+    desc: &SceneDesc,
+    s: &DelightSettings,
+    log: &(dyn Fn(&str) + Sync),
+) -> Result<(Vec<View>, Vec<String>, Working)> {
+    use opal_inverse::delight::working_size::auto_working_size;
+    let auto = |cams: &[opal::camera::Camera]| -> Result<(Option<usize>, serde_json::Value)> {
+        let w = auto_working_size(desc, cams, s)?;
+        log(&format!(
+            "working size of the views: {} ({}; estimated texels {:.0} at full size, {:.0} at the working size, budget {:.0})",
+            w.max_view_pixels.map_or("the photos as they are".into(), |m| format!("at most {m} pixels")),
+            w.reason.replace('_', " "),
+            w.texels_full,
+            w.texels_working,
+            w.texel_budget
+        ));
+        Ok((
+            w.max_view_pixels,
+            json!({
+                "rule": "auto", "max_view_pixels": w.max_view_pixels, "reason": w.reason,
+                "texel_budget": w.texel_budget, "texels_estimated_full_size": w.texels_full,
+                "texels_estimated_working_size": w.texels_working,
+                "min_working_pixels": opal_inverse::delight::working_size::MIN_WORKING_PIXELS,
+            }),
+        ))
+    };
+    let given = |m: usize| {
+        let limit = (m > 0).then_some(m);
+        (
+            limit,
+            json!({"rule": if m > 0 { "setting" } else { "full_size_on_request" }, "max_view_pixels": limit}),
+        )
+    };
+    let (views, vwarn, limit, photo_sizes, wjson) = if a.views.is_dir() {
+        // a COLMAP text model (cameras.txt, images.txt); images beside it or in ../images
+        let images = [a.views.join("images"), a.views.join("../images")]
+            .into_iter()
+            .find(|d| d.is_dir())
+            .unwrap_or_else(|| a.views.clone());
+        let (v, w) = opal_inverse::delight::colmap::read_colmap(&a.views, &images)
+            .with_context(|| format!("cannot read the COLMAP model {}", a.views.display()))?;
+        let sizes: Vec<[usize; 2]> = v.iter().map(|v| [v.image.width, v.image.height]).collect();
+        let (limit, j) = match a.max_view_pixels {
+            Some(m) => given(m),
+            None => auto(&v.iter().map(|v| v.camera.clone()).collect::<Vec<_>>())?,
+        };
+        (v.into_iter().map(|v| downsample_view(v, limit.unwrap_or(0))).collect(), w, limit, sizes, j)
+    } else {
+        let frames = opal_inverse::delight::views::read_frames(&a.views)
+            .with_context(|| format!("cannot read the views {}", a.views.display()))?;
+        let sizes: Vec<[usize; 2]> = frames.iter().map(|f| [f.sensor.width, f.sensor.height]).collect();
+        let (limit, j) = match a.max_view_pixels {
+            Some(m) => given(m),
+            None => auto(&frames.iter().map(|f| opal::camera::Camera::new(&f.sensor)).collect::<Vec<_>>())?,
+        };
+        let (v, w) = read_views_limited(&a.views, limit)
+            .with_context(|| format!("cannot read the views {}", a.views.display()))?;
+        (v, w, limit, sizes, j)
+    };
+    Ok((views, vwarn, Working { limit, photo_sizes, json: wjson, read: ((0.0, 0.0), (0.0, 0.0)) }))
 }
 
 /// Debug outputs of the de-lighting from the diagnostic switches (error-analysis hooks of
@@ -550,12 +627,85 @@ fn write_object_files(r: &DelightResult, out: &Path) -> Result<Vec<Vec<u8>>> {
     Ok(pngs)
 }
 
+/// `m` (a `w × h` pixel mask) without its border pixels: a pixel stays when its 8 neighbours are
+/// in the mask too. A pure pixel may still have a sliver of a neighbouring surface within its
+/// outer 5 % (the pure test's rays are at ±0.45 px), which matters next to an emitter (300×
+/// brighter on the shared box) when the photos are box-filtered by a non-integer factor.
+fn erode_mask(m: &[bool], w: usize, h: usize) -> Vec<bool> {
+    let mut out = vec![false; m.len()];
+    for y in 1..h.saturating_sub(1) {
+        for x in 1..w.saturating_sub(1) {
+            out[y * w + x] = (y - 1..=y + 1).all(|yy| (x - 1..=x + 1).all(|xx| m[yy * w + xx]));
+        }
+    }
+    out
+}
+
+/// Regions smaller than this (pixels) are not judged in the report.
+const MIN_REGION_PIXELS: usize = 64;
+
+/// Largest relative Monte-Carlo standard error of the re-rendered mean luminance over the
+/// judged regions (objects with ≥ [`MIN_REGION_PIXELS`] pixels) of view `v` (0 when none).
+fn region_noise(v: &View, ro: &opal::integrator::path::RenderOutput, masks: &[Vec<bool>]) -> f64 {
+    masks
+        .iter()
+        .filter(|m| m.iter().filter(|&&b| b).count() >= MIN_REGION_PIXELS)
+        .map(|m| region_rel_stderr(v, ro, m))
+        .filter(|x| x.is_finite())
+        .fold(0.0, f64::max)
+}
+
+/// Relative standard error of the re-rendered mean luminance of the region `m` (channels
+/// taken as fully correlated: an upper bound), relative to the photo's mean.
+fn region_rel_stderr(v: &View, ro: &opal::integrator::path::RenderOutput, m: &[bool]) -> f64 {
+    let p = region_stats(&v.image, m);
+    let (mut var, mut n) = (0f64, 0usize);
+    for (k, _) in m.iter().enumerate().filter(|&(_, &b)| b) {
+        let s = opal_inverse::delight::luminance(ro.stderr.data[k].0) as f64;
+        var += s * s;
+        n += 1;
+    }
+    var.sqrt() / n.max(1) as f64 / p.mean_luminance.max(1e-12)
+}
+
+/// Samples per pixel that bring a relative noise of `noise` at `spp` samples down to `target`
+/// (noise ∝ 1/√spp), at least `spp`, at most 16 × `spp`; `spp` when `target` is 0.
+fn rerender_spp_for(spp: u32, noise: f64, target: f64) -> u32 {
+    if target <= 0.0 || noise.is_nan() || noise <= target {
+        return spp;
+    }
+    let want = (spp as f64 * (noise / target).powi(2)).ceil();
+    want.min(16.0 * spp as f64) as u32
+}
+
+/// `a` (a render of `na` samples per pixel) replaced by the mean of it and `b` (`nb` samples,
+/// independent seeds), with the standard errors combined.
+fn combine_renders(
+    a: &mut opal::integrator::path::RenderOutput,
+    na: u32,
+    b: &opal::integrator::path::RenderOutput,
+    nb: u32,
+) {
+    let (wa, wb) = (na as f32 / (na + nb) as f32, nb as f32 / (na + nb) as f32);
+    for k in 0..a.image.data.len() {
+        let (pa, pb) = (a.image.data[k].0, b.image.data[k].0);
+        let (sa, sb) = (a.stderr.data[k].0, b.stderr.data[k].0);
+        let m: [f32; 3] = std::array::from_fn(|c| wa * pa[c] + wb * pb[c]);
+        let s: [f32; 3] = std::array::from_fn(|c| ((wa * sa[c]).powi(2) + (wb * sb[c]).powi(2)).sqrt());
+        a.image.data[k] = opal::spectrum::Spectrum::rgb(m[0], m[1], m[2]);
+        a.stderr.data[k] = opal::spectrum::Spectrum::rgb(s[0], s[1], s[2]);
+    }
+    a.nonfinite += b.nonfinite;
+    a.samples += b.samples;
+}
+
 fn write_outputs(
     a: &DelightArgs,
     desc: &SceneDesc,
     views: &[View],
     r: &DelightResult,
     vwarn: &[String],
+    working: &Working,
     log: &(dyn Fn(&str) + Sync),
 ) -> Result<serde_json::Value> {
     let out = &a.output;
@@ -663,7 +813,18 @@ fn write_outputs(
         // under MPI the rows of each re-render are split across the ranks (the same image)
         let comm = crate::dist::comm_or_solo();
         for (vi, v) in views.iter().enumerate() {
-            let ro = render_split(&rscene, vi, &ps, &|| {}, None, &*comm)?;
+            let (w, h) = (v.image.width, v.image.height);
+            let masks: Vec<Vec<bool>> =
+                object_masks(&scene, v, &shapes).iter().map(|m| erode_mask(m, w, h)).collect();
+            let mut ro = render_split(&rscene, vi, &ps, &|| {}, None, &*comm)?;
+            // more samples where the noisiest judged region is above the target
+            let (pilot_noise, spp) = (region_noise(v, &ro, &masks), a.rerender_spp);
+            let want = rerender_spp_for(spp, pilot_noise, a.rerender_noise);
+            if want > spp {
+                let more = PathSettings { spp: want - spp, seed: ps.seed ^ 0x5EED_0001, ..ps };
+                let r2 = render_split(&rscene, vi, &more, &|| {}, None, &*comm)?;
+                combine_renders(&mut ro, spp, &r2, want - spp);
+            }
             // previews of the photo and the re-render at one exposure, and their error map
             let exposure = html::preview_exposure(&v.image);
             exr(&out.join(format!("rerender/{}.exr", v.name)), &ro.image)?;
@@ -682,12 +843,13 @@ fn write_outputs(
                 "view": v.name, "photo": format!("photo/{}.png", v.name),
                 "rerender": format!("rerender/{}.png", v.name), "exposure": exposure,
                 "error_map": err_png, "rel_bias_luminance": mean_err, "size": [v.image.width, v.image.height],
+                "spp": want.max(spp), "max_region_rel_stderr_at_first_spp": finite_or_null(pilot_noise),
+                "max_region_rel_stderr": finite_or_null(region_noise(v, &ro, &masks)),
             }));
             contact.add(&scene, v, &ro, &shapes);
-            let masks = object_masks(&scene, v, &shapes);
             for (o, m) in r.objects.iter().zip(masks) {
                 let n = m.iter().filter(|&&b| b).count();
-                if n < 64 {
+                if n < MIN_REGION_PIXELS {
                     continue;
                 }
                 let p = region_stats(&v.image, &m);
@@ -695,18 +857,8 @@ fn write_outputs(
                 let rel_y = q.mean_luminance / p.mean_luminance - 1.0;
                 let rel_rgb: Vec<f64> =
                     (0..3).map(|c| q.mean_rgb[c] / p.mean_rgb[c].max(1e-12) - 1.0).collect();
-                // Monte-Carlo standard error of the re-render's region mean luminance (channels
-                // taken as fully correlated: an upper bound), relative to the photo's mean
-                let var: f64 = m
-                    .iter()
-                    .enumerate()
-                    .filter(|&(_, &b)| b)
-                    .map(|(k, _)| {
-                        let s = opal_inverse::delight::luminance(ro.stderr.data[k].0) as f64;
-                        s * s
-                    })
-                    .sum();
-                let rel_se = var.sqrt() / n as f64 / p.mean_luminance.max(1e-12);
+                // Monte-Carlo standard error of the re-render's region mean luminance
+                let rel_se = region_rel_stderr(v, &ro, &m);
                 max_region_err = max_region_err.max(rel_y.abs());
                 regions.push(json!({
                     "view": v.name, "object": o.id, "pixels": n,
@@ -751,6 +903,13 @@ fn write_outputs(
             (k.clone(), json!({"rss_at_end": finite_or_null(*now), "peak_so_far": finite_or_null(*peak)}))
         })
         .collect();
+    let ((rw, rc), (rnow, rpeak)) = working.read;
+    timings.insert("read_views".into(), json!(rw));
+    cpu.insert("read_views".into(), json!(rc));
+    memory.insert(
+        "read_views".into(),
+        json!({"rss_at_end": finite_or_null(rnow), "peak_so_far": finite_or_null(rpeak)}),
+    );
     let (now, peak) = opal_inverse::delight::rss_mb();
     memory.insert(
         "outputs_and_rerenders".into(),
@@ -782,7 +941,7 @@ fn write_outputs(
     });
     let report = json!({
         "scene": a.scene, "views": a.views, "n_views": views.len(),
-        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "target_noise": a.target_noise, "resolution": a.resolution, "max_resolution": a.max_resolution, "max_view_pixels": a.max_view_pixels, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio, "refine_poses": a.refine_poses},
+        "settings": {"iterations": a.iterations, "tolerance": a.tolerance, "light_paths": a.light_paths, "target_noise": a.target_noise, "resolution": a.resolution, "max_resolution": a.max_resolution, "max_view_pixels": a.max_view_pixels, "seed": a.seed, "update": a.update, "rerender_spp": a.rerender_spp, "rerender_noise": a.rerender_noise, "luminance": a.luminance, "view_gains": a.view_gains, "gain_warn_ratio": a.gain_warn_ratio, "refine_poses": a.refine_poses},
         "view_gains": view_gains,
         "poses": poses,
         "converged": r.converged,
@@ -802,6 +961,8 @@ fn write_outputs(
         "cpu_seconds": &cpu,
         "memory_mb": &memory,
         "view_sizes": views.iter().map(|v| [v.image.width, v.image.height]).collect::<Vec<_>>(),
+        "photo_sizes": &working.photo_sizes,
+        "working_size": &working.json,
         "outputs": {"scene": "scene.xml", "gltf": "scene.glb", "convergence_plot": "convergence.png", "report_html": "report.html"},
     });
     util::write_bytes_atomic(&out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
@@ -915,10 +1076,11 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
         target_noise: None,
         resolution: "32".into(),
         max_resolution: 4096,
-        max_view_pixels: 0,
+        max_view_pixels: None,
         unwrap_all: false,
         update: "fixed".into(),
         rerender_spp: 64,
+        rerender_noise: 0.0,
         luminance: "superres".into(),
         tv_lambda: None,
         tv_exponent: None,
@@ -936,4 +1098,34 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
     Ok(
         json!({"output": args.output, "converged": report["converged"], "objects": report["objects"], "max_region_rel_error_luminance": report["max_region_rel_error_luminance"]}),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Border pixels leave the mask; a 4 × 3 block keeps its 2 × 1 interior.
+    #[test]
+    fn erode_keeps_the_interior() {
+        let (w, h) = (6, 5);
+        let mut m = vec![false; w * h];
+        for y in 1..4 {
+            for x in 1..5 {
+                m[y * w + x] = true;
+            }
+        }
+        let e = erode_mask(&m, w, h);
+        let kept: Vec<usize> = (0..w * h).filter(|&k| e[k]).collect();
+        assert_eq!(kept, vec![2 * w + 2, 2 * w + 3]);
+    }
+
+    /// Samples follow (noise/target)², at least the first count, at most 16× it; 0 = off.
+    #[test]
+    fn rerender_samples_follow_the_noise_target() {
+        assert_eq!(rerender_spp_for(64, 0.008, 0.004), 256);
+        assert_eq!(rerender_spp_for(64, 0.002, 0.004), 64);
+        assert_eq!(rerender_spp_for(64, 0.1, 0.004), 1024);
+        assert_eq!(rerender_spp_for(64, 0.1, 0.0), 64);
+        assert_eq!(rerender_spp_for(64, f64::NAN, 0.004), 64);
+    }
 }
