@@ -5,22 +5,22 @@
 
 mod contact;
 mod html;
+mod object_files;
+mod rerender;
 pub mod resume;
 
 use crate::util;
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use contact::ContactAccumulator;
 use opal::image::Image;
-use opal::integrator::path::{PathSettings, render, render_split};
+use opal::integrator::path::{PathSettings, render};
 use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
 use opal_inverse::delight::downsample::downsample_view;
 use opal_inverse::delight::views::{View, read_views_limited};
 use opal_inverse::delight::{
     DelightResult, DelightSettings, LightPaths, ObjectResult, PoseRefinement, PoseSettings, StageClock,
-    UpdateRule, ViewGainMode, ViewGainSettings, apply_view_gains, delight, object_masks, recovered_desc,
-    region_stats,
+    UpdateRule, ViewGainMode, ViewGainSettings, apply_view_gains, delight,
 };
 use serde_json::json;
 use std::fmt::Write as _;
@@ -513,192 +513,6 @@ fn sr_diagnostics(d: &DiagnosticArgs) -> opal_inverse::delight::superres::SrDiag
     }
 }
 
-/// The output files of each object, in this order: the albedo as EXR and as PNG (kind
-/// [`ALBEDO_PNG`]), its mesh as OBJ, then each iteration's error map as PNG and EXR.
-fn object_file_kinds(r: &DelightResult) -> usize {
-    3 + 2 * r.iterations.len()
-}
-
-/// Kind of the albedo PNG among an object's files ([`object_file_kinds`]).
-const ALBEDO_PNG: usize = 1;
-
-/// Path (inside the output folder) of file `kind` of object `j`.
-fn object_file_name(r: &DelightResult, j: usize, kind: usize) -> String {
-    let id = &r.objects[j].id;
-    match kind {
-        0 => format!("albedo/{id}.exr"),
-        ALBEDO_PNG => format!("albedo/{id}.png"),
-        2 => format!("meshes/{id}.obj"),
-        k => {
-            let it = r.iterations[(k - 3) / 2].iteration;
-            let ext = if (k - 3) % 2 == 0 { "png" } else { "exr" };
-            format!("errors/iter_{it:02}_{id}.{ext}")
-        }
-    }
-}
-
-/// Encodes file `kind` of object `j` into `w`.
-fn encode_object_file<W: std::io::Write + std::io::Seek>(
-    r: &DelightResult,
-    j: usize,
-    kind: usize,
-    mut w: W,
-) -> Result<()> {
-    let o = &r.objects[j];
-    match kind {
-        0 => opal::image::write::write_exr(&o.kd_image(), w)?,
-        ALBEDO_PNG => opal::image::write::write_png_srgb(&o.kd_image(), 1.0, w)?,
-        2 => w.write_all(obj_text(o).as_bytes())?,
-        k => {
-            let e = &r.iterations[(k - 3) / 2].error_maps[j];
-            let (wd, ht) = (o.atlas.width, o.atlas.height);
-            if (k - 3) % 2 == 0 {
-                let abs: Vec<f32> = e.iter().map(|v| v.abs()).collect();
-                opal::image::write::write_false_colour_png(&abs, wd, ht, html::TEXEL_ERROR_RANGE, w)?;
-            } else {
-                let mut ei = Image::new(wd, ht);
-                // Unobserved texels (NaN in the library's map) are 0 here: no NaN in an output
-                // file; the PNG marks them.
-                for (p, v) in ei.data.iter_mut().zip(e) {
-                    *p = opal::spectrum::Spectrum::splat(if v.is_finite() { *v } else { 0.0 });
-                }
-                opal::image::write::write_exr(&ei, w)?;
-            }
-        }
-    }
-    Ok(())
-}
-
-/// File `kind` of object `j` as bytes.
-fn object_file_bytes(r: &DelightResult, j: usize, kind: usize) -> Result<Vec<u8>> {
-    let mut c = std::io::Cursor::new(Vec::new());
-    encode_object_file(r, j, kind, &mut c)?;
-    Ok(c.into_inner())
-}
-
-/// Writes every object's files ([`object_file_kinds`]) and returns the albedo PNGs (for the
-/// glTF; empty on ranks other than 0). One process encodes the files in parallel, each
-/// straight into its file; under MPI the files are dealt to the ranks in rounds (file `i` of
-/// round `k` on rank `i`), each rank encodes its file and sends the bytes, and rank 0 writes
-/// them: the output work is split too, and at most one file per rank is in memory at a time.
-fn write_object_files(r: &DelightResult, out: &Path) -> Result<Vec<Vec<u8>>> {
-    use rayon::prelude::*;
-    let units: Vec<(usize, usize)> =
-        (0..r.objects.len()).flat_map(|j| (0..object_file_kinds(r)).map(move |k| (j, k))).collect();
-    let mut pngs = vec![Vec::new(); r.objects.len()];
-    let comm = crate::dist::comm_or_solo();
-    let (rank, size) = (comm.rank(), comm.size());
-    if size == 1 {
-        let kept: Vec<Option<Vec<u8>>> = units
-            .par_iter()
-            .map(|&(j, k)| -> Result<Option<Vec<u8>>> {
-                let path = out.join(object_file_name(r, j, k));
-                if k == ALBEDO_PNG {
-                    let b = object_file_bytes(r, j, k)?;
-                    util::write_bytes_atomic(&path, &b)?;
-                    return Ok(Some(b));
-                }
-                util::write_atomic(&path, |f| encode_object_file(r, j, k, std::io::BufWriter::new(f)))?;
-                Ok(None)
-            })
-            .collect::<Result<_>>()?;
-        for (&(j, _), b) in units.iter().zip(kept) {
-            if let Some(b) = b {
-                pngs[j] = b;
-            }
-        }
-        return Ok(pngs);
-    }
-    for round in units.chunks(size) {
-        let mine = match round.get(rank) {
-            Some(&(j, k)) => object_file_bytes(r, j, k)?,
-            None => Vec::new(),
-        };
-        let all = comm.all_gather_bytes(&mine);
-        if rank == 0 {
-            for (&(j, k), b) in round.iter().zip(all) {
-                util::write_bytes_atomic(&out.join(object_file_name(r, j, k)), &b)?;
-                if k == ALBEDO_PNG {
-                    pngs[j] = b;
-                }
-            }
-        }
-    }
-    Ok(pngs)
-}
-
-/// `m` (a `w × h` pixel mask) without its border pixels: a pixel stays when its 8 neighbours are
-/// in the mask too. A pure pixel may still have a sliver of a neighbouring surface within its
-/// outer 5 % (the pure test's rays are at ±0.45 px), which matters next to an emitter (300×
-/// brighter on the shared box) when the photos are box-filtered by a non-integer factor.
-fn erode_mask(m: &[bool], w: usize, h: usize) -> Vec<bool> {
-    let mut out = vec![false; m.len()];
-    for y in 1..h.saturating_sub(1) {
-        for x in 1..w.saturating_sub(1) {
-            out[y * w + x] = (y - 1..=y + 1).all(|yy| (x - 1..=x + 1).all(|xx| m[yy * w + xx]));
-        }
-    }
-    out
-}
-
-/// Regions smaller than this (pixels) are not judged in the report.
-const MIN_REGION_PIXELS: usize = 64;
-
-/// Largest relative Monte-Carlo standard error of the re-rendered mean luminance over the
-/// judged regions (objects with ≥ [`MIN_REGION_PIXELS`] pixels) of view `v` (0 when none).
-fn region_noise(v: &View, ro: &opal::integrator::path::RenderOutput, masks: &[Vec<bool>]) -> f64 {
-    masks
-        .iter()
-        .filter(|m| m.iter().filter(|&&b| b).count() >= MIN_REGION_PIXELS)
-        .map(|m| region_rel_stderr(v, ro, m))
-        .filter(|x| x.is_finite())
-        .fold(0.0, f64::max)
-}
-
-/// Relative standard error of the re-rendered mean luminance of the region `m` (channels
-/// taken as fully correlated: an upper bound), relative to the photo's mean.
-fn region_rel_stderr(v: &View, ro: &opal::integrator::path::RenderOutput, m: &[bool]) -> f64 {
-    let p = region_stats(&v.image, m);
-    let (mut var, mut n) = (0f64, 0usize);
-    for (k, _) in m.iter().enumerate().filter(|&(_, &b)| b) {
-        let s = opal_inverse::delight::luminance(ro.stderr.data[k].0) as f64;
-        var += s * s;
-        n += 1;
-    }
-    var.sqrt() / n.max(1) as f64 / p.mean_luminance.max(1e-12)
-}
-
-/// Samples per pixel that bring a relative noise of `noise` at `spp` samples down to `target`
-/// (noise ∝ 1/√spp), at least `spp`, at most 16 × `spp`; `spp` when `target` is 0.
-fn rerender_spp_for(spp: u32, noise: f64, target: f64) -> u32 {
-    if target <= 0.0 || noise.is_nan() || noise <= target {
-        return spp;
-    }
-    let want = (spp as f64 * (noise / target).powi(2)).ceil();
-    want.min(16.0 * spp as f64) as u32
-}
-
-/// `a` (a render of `na` samples per pixel) replaced by the mean of it and `b` (`nb` samples,
-/// independent seeds), with the standard errors combined.
-fn combine_renders(
-    a: &mut opal::integrator::path::RenderOutput,
-    na: u32,
-    b: &opal::integrator::path::RenderOutput,
-    nb: u32,
-) {
-    let (wa, wb) = (na as f32 / (na + nb) as f32, nb as f32 / (na + nb) as f32);
-    for k in 0..a.image.data.len() {
-        let (pa, pb) = (a.image.data[k].0, b.image.data[k].0);
-        let (sa, sb) = (a.stderr.data[k].0, b.stderr.data[k].0);
-        let m: [f32; 3] = std::array::from_fn(|c| wa * pa[c] + wb * pb[c]);
-        let s: [f32; 3] = std::array::from_fn(|c| ((wa * sa[c]).powi(2) + (wb * sb[c]).powi(2)).sqrt());
-        a.image.data[k] = opal::spectrum::Spectrum::rgb(m[0], m[1], m[2]);
-        a.stderr.data[k] = opal::spectrum::Spectrum::rgb(s[0], s[1], s[2]);
-    }
-    a.nonfinite += b.nonfinite;
-    a.samples += b.samples;
-}
-
 fn write_outputs(
     a: &DelightArgs,
     desc: &SceneDesc,
@@ -712,7 +526,7 @@ fn write_outputs(
     let t0 = StageClock::start();
     // textures, meshes, error maps (under MPI encoded by all ranks, written by rank 0); the
     // albedo PNGs (8-bit sRGB) are encoded once: albedo/<obj>.png and the glTF textures
-    let albedo_png = write_object_files(r, out)?;
+    let albedo_png = object_files::write_object_files(r, out)?;
     let mut objs = Vec::new();
     for o in &r.objects {
         let m = o.mean_kd_observed();
@@ -792,83 +606,8 @@ fn write_outputs(
     let t_out = t0.elapsed();
     // re-renders and region statistics
     let t_rr = StageClock::start();
-    let mut regions = Vec::new();
-    let mut max_region_err = 0f64;
-    let mut rerenders = Vec::new();
-    let mut contact = ContactAccumulator::default();
-    if a.rerender_spp > 0 {
-        let rdesc = recovered_desc(desc, &r.objects);
-        let mut rscene = Scene::build(&rdesc)?;
-        let scene = Scene::build(desc)?;
-        rscene.cameras = views.iter().map(|v| v.camera.clone()).collect();
-        let integ = desc.integrator.clone().unwrap_or_default();
-        let ps = PathSettings {
-            spp: a.rerender_spp,
-            max_depth: integ.max_depth,
-            rr_depth: integ.rr_depth,
-            hide_emitters: integ.hide_emitters,
-            seed: a.seed ^ 0xDE11,
-        };
-        let shapes: Vec<usize> = r.objects.iter().map(|o| o.shape).collect();
-        // under MPI the rows of each re-render are split across the ranks (the same image)
-        let comm = crate::dist::comm_or_solo();
-        for (vi, v) in views.iter().enumerate() {
-            let (w, h) = (v.image.width, v.image.height);
-            let masks: Vec<Vec<bool>> =
-                object_masks(&scene, v, &shapes).iter().map(|m| erode_mask(m, w, h)).collect();
-            let mut ro = render_split(&rscene, vi, &ps, &|| {}, None, &*comm)?;
-            // more samples where the noisiest judged region is above the target
-            let (pilot_noise, spp) = (region_noise(v, &ro, &masks), a.rerender_spp);
-            let want = rerender_spp_for(spp, pilot_noise, a.rerender_noise);
-            if want > spp {
-                let more = PathSettings { spp: want - spp, seed: ps.seed ^ 0x5EED_0001, ..ps };
-                let r2 = render_split(&rscene, vi, &more, &|| {}, None, &*comm)?;
-                combine_renders(&mut ro, spp, &r2, want - spp);
-            }
-            // previews of the photo and the re-render at one exposure, and their error map
-            let exposure = html::preview_exposure(&v.image);
-            exr(&out.join(format!("rerender/{}.exr", v.name)), &ro.image)?;
-            png(&out.join(format!("rerender/{}.png", v.name)), &ro.image, exposure)?;
-            let mut photo = v.image.clone();
-            photo
-                .data
-                .iter_mut()
-                .filter(|p| !p.is_finite())
-                .for_each(|p| *p = opal::spectrum::Spectrum::ZERO);
-            png(&out.join(format!("photo/{}.png", v.name)), &photo, exposure)?;
-            let (err, mean_err) = html::view_error(&v.image, &ro.image);
-            let err_png = format!("errors/view_{}.png", v.name);
-            html::write_signed_error_png(&out.join(&err_png), &err, v.image.width, v.image.height)?;
-            rerenders.push(json!({
-                "view": v.name, "photo": format!("photo/{}.png", v.name),
-                "rerender": format!("rerender/{}.png", v.name), "exposure": exposure,
-                "error_map": err_png, "rel_bias_luminance": mean_err, "size": [v.image.width, v.image.height],
-                "spp": want.max(spp), "max_region_rel_stderr_at_first_spp": finite_or_null(pilot_noise),
-                "max_region_rel_stderr": finite_or_null(region_noise(v, &ro, &masks)),
-            }));
-            contact.add(&scene, v, &ro, &shapes);
-            for (o, m) in r.objects.iter().zip(masks) {
-                let n = m.iter().filter(|&&b| b).count();
-                if n < MIN_REGION_PIXELS {
-                    continue;
-                }
-                let p = region_stats(&v.image, &m);
-                let q = region_stats(&ro.image, &m);
-                let rel_y = q.mean_luminance / p.mean_luminance - 1.0;
-                let rel_rgb: Vec<f64> =
-                    (0..3).map(|c| q.mean_rgb[c] / p.mean_rgb[c].max(1e-12) - 1.0).collect();
-                // Monte-Carlo standard error of the re-render's region mean luminance
-                let rel_se = region_rel_stderr(v, &ro, &m);
-                max_region_err = max_region_err.max(rel_y.abs());
-                regions.push(json!({
-                    "view": v.name, "object": o.id, "pixels": n,
-                    "photo": p, "rerender": q,
-                    "rel_error_luminance": rel_y, "rel_error_rgb": rel_rgb,
-                    "rerender_rel_stderr_luminance": rel_se,
-                }));
-            }
-        }
-    }
+    let rerender::Judged { regions, max_region_err, rerenders, contact } =
+        rerender::rerender_and_judge(a, desc, views, r)?;
     let its: Vec<serde_json::Value> = r
         .iterations
         .iter()
@@ -1098,34 +837,4 @@ pub fn demo(out: &Path) -> Result<serde_json::Value> {
     Ok(
         json!({"output": args.output, "converged": report["converged"], "objects": report["objects"], "max_region_rel_error_luminance": report["max_region_rel_error_luminance"]}),
     )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Border pixels leave the mask; a 4 × 3 block keeps its 2 × 1 interior.
-    #[test]
-    fn erode_keeps_the_interior() {
-        let (w, h) = (6, 5);
-        let mut m = vec![false; w * h];
-        for y in 1..4 {
-            for x in 1..5 {
-                m[y * w + x] = true;
-            }
-        }
-        let e = erode_mask(&m, w, h);
-        let kept: Vec<usize> = (0..w * h).filter(|&k| e[k]).collect();
-        assert_eq!(kept, vec![2 * w + 2, 2 * w + 3]);
-    }
-
-    /// Samples follow (noise/target)², at least the first count, at most 16× it; 0 = off.
-    #[test]
-    fn rerender_samples_follow_the_noise_target() {
-        assert_eq!(rerender_spp_for(64, 0.008, 0.004), 256);
-        assert_eq!(rerender_spp_for(64, 0.002, 0.004), 64);
-        assert_eq!(rerender_spp_for(64, 0.1, 0.004), 1024);
-        assert_eq!(rerender_spp_for(64, 0.1, 0.0), 64);
-        assert_eq!(rerender_spp_for(64, f64::NAN, 0.004), 64);
-    }
 }
