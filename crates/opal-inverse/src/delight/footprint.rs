@@ -95,6 +95,20 @@ pub struct ResolutionChoice {
     pub seen_area_fraction: f64,
 }
 
+#[cfg(test)]
+impl ResolutionChoice {
+    /// A resolution given by the settings, the whole surface seen (the unit tests' objects).
+    pub(crate) fn setting() -> ResolutionChoice {
+        ResolutionChoice {
+            rule: ResolutionRule::Setting,
+            unclamped: None,
+            pixel_density: None,
+            texel_density: None,
+            seen_area_fraction: 1.0,
+        }
+    }
+}
+
 /// Pixel density (pixels per unit area) of `cam` at the surface point `p` with unit normal
 /// `n`, or `None` when the surface faces away or `p` is outside the film (no occlusion test).
 pub fn pixel_density(cam: &Camera, p: Vec3, n: Vec3) -> Option<f64> {

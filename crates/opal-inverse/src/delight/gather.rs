@@ -219,7 +219,7 @@ pub fn gathered_map(a: &Atlas, vals: &[[f32; 3]]) -> Vec<[f32; 3]> {
 mod tests {
     use super::*;
     use crate::delight::atlas::build_atlas;
-    use crate::delight::footprint::{ResolutionChoice, ResolutionRule};
+    use crate::delight::footprint::ResolutionChoice;
     use opal::geometry::TriangleMesh;
     use opal::math::Vec3;
     use opal::scene::desc::{BsdfDesc, SceneDesc, ShapeDesc, TextureDesc};
@@ -266,13 +266,7 @@ mod tests {
                 ObjectResult {
                     shape: k,
                     id: format!("face{k}"),
-                    resolution: ResolutionChoice {
-                        rule: ResolutionRule::Setting,
-                        unclamped: None,
-                        pixel_density: None,
-                        texel_density: None,
-                        seen_area_fraction: 1.0,
-                    },
+                    resolution: ResolutionChoice::setting(),
                     l: vec![l(k); n],
                     observed: a.texel_tri.iter().map(|&t| t != NO_TRI).collect(),
                     ed: vec![[0.0; 3]; n],

@@ -128,7 +128,7 @@ mod tests {
     use super::*;
     use crate::delight::albedo::update_kd;
     use crate::delight::atlas::{NO_TRI, build_atlas};
-    use crate::delight::footprint::{ResolutionChoice, ResolutionRule};
+    use crate::delight::footprint::ResolutionChoice;
     use opal::dist::{Solo, ThreadComm};
     use opal::geometry::TriangleMesh;
     use opal::math::Vec3;
@@ -163,13 +163,7 @@ mod tests {
                 ObjectResult {
                     shape: k,
                     id: format!("quad{k}"),
-                    resolution: ResolutionChoice {
-                        rule: ResolutionRule::Setting,
-                        unclamped: None,
-                        pixel_density: None,
-                        texel_density: None,
-                        seen_area_fraction: 1.0,
-                    },
+                    resolution: ResolutionChoice::setting(),
                     l: px(&|i, c| hash01(k, i, c)),
                     observed: a
                         .texel_tri
