@@ -10,6 +10,27 @@ use opal::gonio::{Beam, DetectorGrid, DetectorLayout, Face, GonioSetup, Plate, S
 use serde::Deserialize;
 use std::path::Path;
 
+/// The plate, beam and detector flags of `gonio simulate` and `fit-ndf` (one definition for
+/// both); each overrides the PLATE.toml field of the same meaning.
+#[derive(clap::Args, Debug, Default, Clone)]
+pub struct PlateFlags {
+    /// Refractive index of the plate.
+    #[arg(long, allow_hyphen_values = true)]
+    pub ior: Option<f64>,
+    /// Plate thickness in mm.
+    #[arg(long, allow_hyphen_values = true)]
+    pub thickness_mm: Option<f64>,
+    /// Which face is lit: the polished one (`smooth`) or the rough one (`rough`).
+    #[arg(long)]
+    pub entry: Option<String>,
+    /// Beam divergence (half-angle, degrees).
+    #[arg(long, allow_hyphen_values = true)]
+    pub divergence_deg: Option<f64>,
+    /// Angular radius of the detectors (degrees).
+    #[arg(long, allow_hyphen_values = true)]
+    pub detector_radius_deg: Option<f64>,
+}
+
 /// Values given on the command line; each one overrides the PLATE.toml field of the same
 /// meaning (`None`: the file's value or the default).
 #[derive(Debug, Default, Clone)]
@@ -18,16 +39,8 @@ pub struct PlateOverrides {
     pub photons: Option<u64>,
     /// Random seed.
     pub seed: Option<u64>,
-    /// Refractive index of the plate.
-    pub ior: Option<f64>,
-    /// Plate thickness in mm.
-    pub thickness_mm: Option<f64>,
-    /// Which face is lit: `smooth` or `rough`.
-    pub entry: Option<String>,
-    /// Beam divergence (half-angle, degrees).
-    pub divergence_deg: Option<f64>,
-    /// Angular radius of the detectors (degrees).
-    pub detector_radius_deg: Option<f64>,
+    /// Plate, beam and detector values.
+    pub plate: PlateFlags,
     /// NDF of the rough face(s): FAMILY:ALPHA or student:ALPHA:GAMMA (flag `--ndf`).
     pub ndf: Option<String>,
     /// Scattering model of the rough face(s) (flag `--scattering`).
@@ -276,11 +289,11 @@ pub struct Config {
 /// Merges file and flags into a validated configuration.
 pub fn build_config(file: &PlateFile, a: &PlateOverrides) -> Result<Config> {
     let p = &file.plate;
-    let ior = a.ior.or(p.ior).unwrap_or(1.49);
+    let ior = a.plate.ior.or(p.ior).unwrap_or(1.49);
     if !(ior.is_finite() && ior > 0.0) {
         bail!("plate.ior: must be > 0, got {ior}");
     }
-    let thickness_mm = a.thickness_mm.or(p.thickness_mm).unwrap_or(2.0);
+    let thickness_mm = a.plate.thickness_mm.or(p.thickness_mm).unwrap_or(2.0);
     if !(thickness_mm.is_finite() && thickness_mm > 0.0) {
         bail!("plate.thickness_mm: must be > 0, got {thickness_mm}");
     }
@@ -305,7 +318,7 @@ pub fn build_config(file: &PlateFile, a: &PlateOverrides) -> Result<Config> {
         a.ndf.as_deref().filter(|_| back_spec.kind != "polished"),
         a.scattering.as_deref(),
     )?;
-    let entry = a.entry.clone().or(p.entry.clone());
+    let entry = a.plate.entry.clone().or(p.entry.clone());
     let lit_back = match (&entry, &p.lit) {
         (Some(e), _) => {
             let (fr, br) = (front.is_rough(), back.is_rough());
@@ -330,7 +343,7 @@ pub fn build_config(file: &PlateFile, a: &PlateOverrides) -> Result<Config> {
     opal::gonio::validate_plate(&plate).map_err(|e| anyhow::anyhow!("plate: {e}"))?;
 
     let b = &file.beam;
-    let divergence_deg = a.divergence_deg.or(b.divergence_deg).unwrap_or(0.5);
+    let divergence_deg = a.plate.divergence_deg.or(b.divergence_deg).unwrap_or(0.5);
     if !(divergence_deg.is_finite() && (0.0..90.0).contains(&divergence_deg)) {
         bail!("beam.divergence_deg: must be in [0, 90), got {divergence_deg}");
     }
@@ -349,7 +362,7 @@ pub fn build_config(file: &PlateFile, a: &PlateOverrides) -> Result<Config> {
         aperture_radius_mm: b.aperture_radius_mm.unwrap_or(1.0),
     };
     let d = &file.detectors;
-    let radius_deg = a.detector_radius_deg.or(d.radius_deg).unwrap_or(1.0);
+    let radius_deg = a.plate.detector_radius_deg.or(d.radius_deg).unwrap_or(1.0);
     if !(radius_deg.is_finite() && radius_deg > 0.0 && radius_deg < 90.0) {
         bail!("detectors.radius_deg: must be in (0, 90), got {radius_deg}");
     }

@@ -1,7 +1,7 @@
 //! `opal gonio simulate`: the virtual goniophotometer (plate, beam, detectors) of
 //! [`opal::gonio`], configured by a PLATE.toml (format in `docs/gonio.md`) and/or flags.
 
-use crate::plate::{Config, PlateFile, PlateOverrides, build_config, read_plate_file};
+use crate::plate::{Config, PlateFile, PlateFlags, PlateOverrides, build_config, read_plate_file};
 use crate::plot::{LinePlot, Series, save_panels};
 use crate::util::{progress, write_atomic};
 use anyhow::{Context, Result};
@@ -46,21 +46,9 @@ pub struct SimulateArgs {
     /// Print the totals R, T, lost per incidence as JSON on stdout.
     #[arg(long)]
     pub json: bool,
-    /// Refractive index of the plate.
-    #[arg(long, allow_hyphen_values = true)]
-    pub ior: Option<f64>,
-    /// Plate thickness in mm.
-    #[arg(long, allow_hyphen_values = true)]
-    pub thickness_mm: Option<f64>,
-    /// Which face is lit: the polished one (`smooth`) or the rough one (`rough`).
-    #[arg(long)]
-    pub entry: Option<String>,
-    /// Beam divergence (half-angle, degrees).
-    #[arg(long, allow_hyphen_values = true)]
-    pub divergence_deg: Option<f64>,
-    /// Angular radius of the detectors (degrees).
-    #[arg(long, allow_hyphen_values = true)]
-    pub detector_radius_deg: Option<f64>,
+    /// Plate, beam and detectors.
+    #[command(flatten)]
+    pub plate_flags: PlateFlags,
     /// NDF of the rough face: FAMILY:ALPHA (ggx:0.15, beckmann:0.25) or student:ALPHA:GAMMA.
     #[arg(long, allow_hyphen_values = true)]
     pub ndf: Option<String>,
@@ -180,11 +168,7 @@ impl SimulateArgs {
         PlateOverrides {
             photons: self.photons,
             seed: self.seed,
-            ior: self.ior,
-            thickness_mm: self.thickness_mm,
-            entry: self.entry.clone(),
-            divergence_deg: self.divergence_deg,
-            detector_radius_deg: self.detector_radius_deg,
+            plate: self.plate_flags.clone(),
             ndf: self.ndf.clone(),
             scattering: self.scattering.clone(),
         }

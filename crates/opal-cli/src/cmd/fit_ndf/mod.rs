@@ -3,7 +3,7 @@
 //! [`opal_inverse::ndf_fit`], [`opal_inverse::export`]; formats in `docs/formats.md`,
 //! usage in `docs/fit-ndf.md`.
 
-use crate::plate::{PlateFile, PlateOverrides, build_config, parse_scattering, read_plate_file};
+use crate::plate::{PlateFile, PlateFlags, PlateOverrides, build_config, parse_scattering, read_plate_file};
 use crate::util::{ensure_not_input, write_bytes_atomic};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
@@ -74,21 +74,9 @@ pub struct FitNdfArgs {
     /// Print fit.json on stdout.
     #[arg(long)]
     pub json: bool,
-    /// Refractive index of the plate.
-    #[arg(long)]
-    pub ior: Option<f64>,
-    /// Plate thickness in mm.
-    #[arg(long)]
-    pub thickness_mm: Option<f64>,
-    /// Which face is lit: the polished one (`smooth`) or the rough one (`rough`).
-    #[arg(long)]
-    pub entry: Option<String>,
-    /// Beam divergence (half-angle, degrees).
-    #[arg(long)]
-    pub divergence_deg: Option<f64>,
-    /// Angular radius of the detectors (degrees).
-    #[arg(long)]
-    pub detector_radius_deg: Option<f64>,
+    /// Plate, beam and detectors.
+    #[command(flatten)]
+    pub plate_flags: PlateFlags,
     /// Maximum optimiser iterations per family and free parameter (Nelder–Mead over k
     /// parameters gets k × this; fewer → the fit may not converge: exit 1).
     #[arg(long, default_value_t = 40)]
@@ -213,11 +201,7 @@ pub fn build_problem(a: &FitNdfArgs) -> Result<(Problem, FitOptions)> {
     let sim = PlateOverrides {
         photons: Some(photons),
         seed: a.seed,
-        ior: a.ior,
-        thickness_mm: a.thickness_mm,
-        entry: a.entry.clone(),
-        divergence_deg: a.divergence_deg,
-        detector_radius_deg: a.detector_radius_deg,
+        plate: a.plate_flags.clone(),
         // placeholder NDF for the rough face (replaced at every evaluation)
         ndf: Some("ggx:0.1".into()),
         scattering: Some(a.scattering.clone()),
@@ -578,9 +562,12 @@ pub fn demo(out_dir: &Path) -> Result<serde_json::Value> {
         scale: "absolute".into(),
         photons: Some(DEMO_PHOTONS),
         max_iters: 40,
-        entry: Some("rough".into()),
-        ior: Some(1.52),
-        thickness_mm: Some(3.0),
+        plate_flags: PlateFlags {
+            entry: Some("rough".into()),
+            ior: Some(1.52),
+            thickness_mm: Some(3.0),
+            ..Default::default()
+        },
         floor: 0.01,
         min_snr: DEFAULT_MIN_SNR,
         ..Default::default()
