@@ -43,59 +43,94 @@ pub fn direct_irradiance(
 }
 
 /// [`direct_irradiance`] (`(samples, pilot)`) with the texels split across the processes of
-/// `comm`: texel `i` is estimated by rank `i mod size` (its random numbers depend on `i` and the
-/// seed only), the pilot's results and the re-estimated penumbra texels are exchanged whole, and
-/// every rank returns the full map — the same bits as one process computes.
+/// `comm` ([`direct_irradiance_many`] of one atlas): every rank returns the full map — the same
+/// bits as one process computes.
 pub fn direct_irradiance_split(
     scene: &Scene,
     a: &Atlas,
-    (samples, pilot): (u32, u32),
+    samples: (u32, u32),
     seed: u64,
     stream: u64,
     comm: &dyn opal::dist::Comm,
 ) -> Vec<[f32; 3]> {
+    let mut maps = direct_irradiance_many(scene, &[a], samples, seed, &[stream], comm);
+    maps.pop().expect("one map per atlas")
+}
+
+/// [`direct_irradiance`] (`(samples, pilot)`) of several atlases (atlas `j` seeded with
+/// `streams[j]`), split across the processes of `comm`. The units are the covered texels of all
+/// atlases together (an uncovered texel is 0 without any work), the `k`-th on rank `k mod size`;
+/// each texel's random numbers depend on its atlas's stream, its index and the seed only. The
+/// pilot's results of all atlases are exchanged in one step, then the re-estimated (dilated)
+/// penumbra texels of all atlases in a second, so the processes share the whole stage evenly and
+/// meet twice. Every rank returns every map — the same bits as one process computes, atlas by
+/// atlas.
+pub fn direct_irradiance_many(
+    scene: &Scene,
+    atlases: &[&Atlas],
+    (samples, pilot): (u32, u32),
+    seed: u64,
+    streams: &[u64],
+    comm: &dyn opal::dist::Comm,
+) -> Vec<Vec<[f32; 3]>> {
     use opal::dist::map_units;
+    assert_eq!(atlases.len(), streams.len(), "one stream per atlas");
     let put = |e: &[f32; 3], p: &mut opal::dist::Packer| p.f32s(e);
-    let n = a.width * a.height;
+    let mut out: Vec<Vec<[f32; 3]>> = atlases.iter().map(|a| vec![[0.0; 3]; a.width * a.height]).collect();
     if scene.light_sampler().is_none() {
-        return vec![[0.0; 3]; n];
+        return out;
     }
+    // the covered texels of all atlases: (atlas, texel)
+    let covered: Vec<(u32, u32)> = atlases
+        .iter()
+        .enumerate()
+        .flat_map(|(j, a)| {
+            (0..a.width * a.height).filter(|&i| a.texel_tri[i] != NO_TRI).map(move |i| (j as u32, i as u32))
+        })
+        .collect();
     let side = (samples.max(1) as f32).sqrt().ceil() as u32;
     let pilot_side = (pilot as f32).sqrt().ceil() as u32;
     let per_light = scene.lights.len() <= MAX_LIGHTS_PER_TEXEL;
+    // texel `i` of atlas `j` with `side`² samples on the stream `stream ^ xor`
+    let texel = |(j, i): (u32, u32), side: u32, xor: u64| {
+        let (j, i) = (j as usize, i as usize);
+        texel_direct(scene, atlases[j], i, side, &mut Rng::new(seed, streams[j] ^ xor, i as u64))
+    };
     if !per_light || pilot == 0 || pilot_side >= side {
-        return map_units(
-            comm,
-            n,
-            |i| texel_direct(scene, a, i, side, &mut Rng::new(seed, stream, i as u64)).0,
-            put,
-            |u| u.rgb(),
-        );
+        let vals = map_units(comm, covered.len(), |k| texel(covered[k], side, 0).0, put, |u| u.rgb());
+        for (&(j, i), e) in covered.iter().zip(vals) {
+            out[j as usize][i as usize] = e;
+        }
+        return out;
     }
     // pilot pass (its own random stream), then the penumbrae (dilated) at the full count
     let first: Vec<([f32; 3], bool)> = map_units(
         comm,
-        n,
-        |i| texel_direct(scene, a, i, pilot_side, &mut Rng::new(seed, stream ^ PILOT_STREAM, i as u64)),
+        covered.len(),
+        |k| texel(covered[k], pilot_side, PILOT_STREAM),
         |(e, m), p| {
             p.f32s(e);
             p.u8(*m as u8);
         },
         |u| (u.rgb(), u.u8() != 0),
     );
-    let mixed: Vec<bool> = first.iter().map(|f| f.1).collect();
-    let redo = dilate_mask(&mixed, a.width, a.height, PENUMBRA_DILATION);
-    let redo_idx: Vec<usize> = (0..n).filter(|&i| redo[i]).collect();
-    let again = map_units(
-        comm,
-        redo_idx.len(),
-        |k| texel_direct(scene, a, redo_idx[k], side, &mut Rng::new(seed, stream, redo_idx[k] as u64)).0,
-        put,
-        |u| u.rgb(),
-    );
-    let mut out: Vec<[f32; 3]> = first.into_iter().map(|f| f.0).collect();
-    for (&i, e) in redo_idx.iter().zip(again) {
-        out[i] = e;
+    let mut mixed: Vec<Vec<bool>> = atlases.iter().map(|a| vec![false; a.width * a.height]).collect();
+    for (&(j, i), (e, m)) in covered.iter().zip(first) {
+        out[j as usize][i as usize] = e;
+        mixed[j as usize][i as usize] = m;
+    }
+    // an uncovered texel in a dilated penumbra stays 0 (what its full estimate gives)
+    let mut redo_idx: Vec<(u32, u32)> = Vec::new();
+    for (j, (a, m)) in atlases.iter().zip(&mixed).enumerate() {
+        let redo = dilate_mask(m, a.width, a.height, PENUMBRA_DILATION);
+        redo_idx.extend(
+            (0..redo.len()).filter(|&i| redo[i] && a.texel_tri[i] != NO_TRI).map(|i| (j as u32, i as u32)),
+        );
+    }
+    drop(mixed);
+    let again = map_units(comm, redo_idx.len(), |k| texel(redo_idx[k], side, 0).0, put, |u| u.rgb());
+    for (&(j, i), e) in redo_idx.iter().zip(again) {
+        out[j as usize][i as usize] = e;
     }
     out
 }
@@ -477,6 +512,42 @@ mod tests {
                 });
                 for got in all {
                     assert_eq!(bits(&got), bits(&want), "pilot {pilot}, {n} ranks");
+                }
+            }
+        }
+    }
+
+    /// Several atlases in one split (the floor and the short box of the Cornell box, each with
+    /// its own stream; their covered texels the units of one exchange per step): on 1, 2 and 3
+    /// ranks (threads), with and without the pilot, every rank gets each atlas's map of
+    /// [`direct_irradiance`] alone, bit for bit.
+    #[test]
+    fn many_atlases_split_across_ranks_give_each_atlas_its_own_bits() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../opal/tests/data/cbox");
+        let mut desc = opal::scene::load::load_mitsuba_xml(&dir.join("scene.xml"), &[]).unwrap();
+        let mut atlases = Vec::new();
+        for (id, res) in [("floor", 32), ("short_box", 24)] {
+            let k = desc.shapes.iter().position(|s| s.id == id).unwrap();
+            let a = atlas::build_atlas(&desc.shapes[k].mesh, res, true).unwrap();
+            desc.shapes[k].mesh = a.mesh.clone();
+            atlases.push(a);
+        }
+        let scene = Scene::build(&desc).unwrap();
+        let refs: Vec<&Atlas> = atlases.iter().collect();
+        let streams = [9, 10];
+        for pilot in [0, 4] {
+            let want: Vec<Vec<u32>> = atlases
+                .iter()
+                .zip(streams)
+                .map(|(a, st)| bits(&direct_irradiance(&scene, a, 16, pilot, 5, st)))
+                .collect();
+            for n in [1, 2, 3] {
+                let all = opal::dist::ThreadComm::run(n, |c| {
+                    direct_irradiance_many(&scene, &refs, (16, pilot), 5, &streams, c)
+                });
+                for got in all {
+                    let got: Vec<Vec<u32>> = got.iter().map(|m| bits(m)).collect();
+                    assert_eq!(got, want, "pilot {pilot}, {n} ranks");
                 }
             }
         }

@@ -15,7 +15,8 @@
 //!   most ⌈charts / 2⌉ (≥ 2) such splits per attempt. This fills the last gaps of the atlas.
 //! * Density: attempts at `s_max · (0.9 − 0.006 j)` with `s_max = res / √(UV area)` (the area
 //!   bound), four at a time in parallel; the largest success of the first batch with one wins
-//!   (success is not monotone in the density). Deterministic for any thread count.
+//!   (success is not monotone in the density). On one thread the four are tried in order and
+//!   the first success ends the batch (the same winner). Deterministic for any thread count.
 //!
 //! Tests: `atlas::tests` (utilisation on the displaced sphere, no overlaps).
 
@@ -296,7 +297,7 @@ pub struct Packed {
 
 /// Quarter turns tried per piece.
 const ROTATIONS: u8 = 4;
-/// Densities tried together (in parallel).
+/// Densities tried together (in parallel; in order, up to the first success, on one thread).
 const BATCH: usize = 4;
 /// First density tried, relative to the area bound (a utilisation of 0.9²).
 const START: f64 = 0.9;
@@ -398,8 +399,16 @@ pub fn pack(flats: &[Flat], res: usize) -> Result<(Vec<Packed>, f64), String> {
         let batch: Vec<f64> =
             (0..BATCH).map(|b| s_max * (f - 0.006 * b as f64)).filter(|&s| s > 0.0).collect();
         j += BATCH;
-        let results: Vec<_> = batch.par_iter().map(|&s| pack_at(&start, flats, res, s, max_splits)).collect();
-        if let Some((s, placed)) = batch.iter().zip(results).find_map(|(&s, r)| r.map(|r| (s, r))) {
+        // the largest density of the batch that succeeds: on one thread the densities in order,
+        // stopping at the first success (the same one, without the attempts after it)
+        let found = if rayon::current_num_threads() > 1 {
+            let results: Vec<_> =
+                batch.par_iter().map(|&s| pack_at(&start, flats, res, s, max_splits)).collect();
+            batch.iter().zip(results).find_map(|(&s, r)| r.map(|r| (s, r)))
+        } else {
+            batch.iter().find_map(|&s| pack_at(&start, flats, res, s, max_splits).map(|r| (s, r)))
+        };
+        if let Some((s, placed)) = found {
             let inv = 1.0 / res as f64;
             let packed = placed
                 .into_iter()

@@ -147,14 +147,20 @@ fn displaced_sphere_unwrap_is_valid_dense_and_conformal() {
     assert!(d.area_mean < 1.15 && d.area_p95 < 1.3, "{d:?}");
 }
 
+/// The same atlas on 3 threads (the packing's densities tried in parallel batches) and on one
+/// (tried in order, up to the first success of a batch).
 #[test]
 fn curved_unwrap_is_deterministic() {
     let m = testmesh::displaced_icosphere(4, 0.1);
-    let a = build_atlas(&m, 512, false).unwrap();
-    let b = build_atlas(&m, 512, false).unwrap();
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| build_atlas(&m, 512, false).unwrap())
+    };
+    let (a, b) = (on(3), on(1));
     assert_eq!(a.mesh.uvs, b.mesh.uvs);
     assert_eq!(a.tri_chart, b.tri_chart);
     assert_eq!(a.texel_owner, b.texel_owner);
+    assert_eq!(a.texel_tri, b.texel_tri);
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! Stage 2 of [`delight`](crate::delight::delight): the direct irradiance `Ed` per texel of
-//! every object by light sampling ([`direct_irradiance_split`], seeded per object and texel; the
-//! texels split across the processes of `DelightSettings::comm`) and its scene
+//! every object by light sampling ([`direct_irradiance_many`], seeded per object and texel; the
+//! covered texels of all objects split across the processes of `DelightSettings::comm` in one
+//! exchange for the pilot and one for the penumbrae) and its scene
 //! average over the covered surface (the initial indirect estimate of texels without direct
 //! light). Runs before the luminance stage. Tests: `tests/delight.rs`, the unit tests of
 //! `delight/direct.rs`.
@@ -9,7 +10,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::delight::atlas::NO_TRI;
-use crate::delight::direct::direct_irradiance_split;
+use crate::delight::direct::direct_irradiance_many;
 use crate::delight::{DelightSettings, ObjectResult};
 use opal::scene::Scene;
 
@@ -22,9 +23,13 @@ pub(in crate::delight) fn direct_stage(
 ) -> [f32; 3] {
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
-    for (j, o) in objects.iter_mut().enumerate() {
-        let samples = (s.direct_samples, s.direct_pilot);
-        o.ed = direct_irradiance_split(scene, &o.atlas, samples, s.seed, 0xED00 + j as u64, comm);
+    // all objects in one split (object j seeded with its own stream)
+    let atlases: Vec<&crate::delight::atlas::Atlas> = objects.iter().map(|o| &o.atlas).collect();
+    let streams: Vec<u64> = (0..objects.len()).map(|j| 0xED00 + j as u64).collect();
+    let samples = (s.direct_samples, s.direct_pilot);
+    let maps = direct_irradiance_many(scene, &atlases, samples, s.seed, &streams, comm);
+    for (o, ed) in objects.iter_mut().zip(maps) {
+        o.ed = ed;
     }
     scene_average(objects)
 }
