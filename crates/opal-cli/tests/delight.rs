@@ -1,7 +1,8 @@
 //! `opal delight` end to end through the binary: a tiny happy path (outputs exist, `--json`
 //! key sets as documented, the albedos equal to the library's on the same views and settings,
 //! the written scene.xml loads in Opal with the recovered texels), view gains in report.json,
-//! and bad input (exit 2, message naming the problem, no output written).
+//! a COLMAP model's photos read at the working size, and bad input (exit 2, message naming the
+//! problem, no output written).
 
 mod common;
 
@@ -676,6 +677,81 @@ fn max_view_pixels_works_from_downsampled_views() {
         assert!(m["peak_so_far"].as_f64().unwrap() >= m["rss_at_end"].as_f64().unwrap(), "{k}: {m}");
     }
     assert!(mem.contains_key("total"));
+}
+
+/// A COLMAP text model of the tiny run's photos (`PINHOLE`, centred principal point, the model
+/// in `DIR` and the photos in `DIR/images`): `--views DIR` takes the working size from the
+/// model's cameras and box-filters each photo as it is read, so report.json has the same photo
+/// and working sizes as with the transforms.json of the same photos, and the albedos agree
+/// (the resampling onto the ideal pinhole is the identity here, up to rounding).
+#[test]
+fn colmap_views_are_read_at_the_working_size() {
+    use glam::{DMat3, DQuat, DVec3};
+    let tmp = tempfile::tempdir().unwrap();
+    let (_, want) = tiny_run_with(tmp.path(), &cbox(), &["--max-view-pixels", "144"]);
+    let model = tmp.path().join("model");
+    std::fs::create_dir_all(model.join("images")).unwrap();
+    let desc = opal::scene::load::load_mitsuba_xml(&cbox(), &[]).unwrap();
+    let (mut cameras, mut images) = (String::new(), String::new());
+    for (c, s) in desc.sensors.iter().take(3).enumerate() {
+        let fx = 24.0 / (2.0 * (0.5 * (s.fov_x_deg as f64).to_radians()).tan());
+        cameras += &format!("{} PINHOLE 24 24 {fx} {fx} 12 12\n", c + 1);
+        // Mitsuba's to_world = [Rᵀ·diag(−1, −1, 1) | C], COLMAP's x_cam = R x_world + t
+        let m = s.to_world.as_dmat4();
+        let r = (DMat3::from_mat4(m) * DMat3::from_diagonal(DVec3::new(-1.0, -1.0, 1.0))).transpose();
+        let t = -(r * m.w_axis.truncate());
+        let q = DQuat::from_mat3(&r);
+        images += &format!(
+            "{} {} {} {} {} {} {} {} {} v{c}.exr\n\n",
+            c + 1,
+            q.w,
+            q.x,
+            q.y,
+            q.z,
+            t.x,
+            t.y,
+            t.z,
+            c + 1
+        );
+        std::fs::copy(tmp.path().join(format!("v{c}.exr")), model.join(format!("images/v{c}.exr"))).unwrap();
+    }
+    std::fs::write(model.join("cameras.txt"), cameras).unwrap();
+    std::fs::write(model.join("images.txt"), images).unwrap();
+    let out = tmp.path().join("out_colmap");
+    let o = opal(&[
+        "delight",
+        "--scene",
+        cbox().to_str().unwrap(),
+        "--views",
+        model.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--resolution",
+        "16",
+        "--light-paths",
+        "100000",
+        "--iterations",
+        "2",
+        "--rerender-spp",
+        "4",
+        "--json",
+        "--max-view-pixels",
+        "144",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let got: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(got["working_size"]["rule"], "setting");
+    assert_eq!(got["photo_sizes"], want["photo_sizes"]);
+    assert_eq!(got["view_sizes"], want["view_sizes"]);
+    assert_eq!(got["view_sizes"][0], serde_json::json!([12, 12]));
+    for (a, b) in got["objects"].as_array().unwrap().iter().zip(want["objects"].as_array().unwrap()) {
+        assert_eq!(a["id"], b["id"]);
+        for c in 0..3 {
+            let (x, y) =
+                (a["mean_albedo_seen"][c].as_f64().unwrap(), b["mean_albedo_seen"][c].as_f64().unwrap());
+            assert!((x - y).abs() <= 1e-3 * y.max(1e-3), "{}: {x} vs {y}", a["id"]);
+        }
+    }
 }
 
 /// The defaults: no `--max-view-pixels` gives the automatic working size (views of 32² are

@@ -14,11 +14,17 @@
 //! [`View::bad_pixels`]). The Mitsuba `to_world` is `[Rᵀ·diag(−1, −1, 1) | C]`.
 //!
 //! Images: `NAME` under `image_dir`; when that file is not there, the same stem with `.exr`
-//! (COLMAP usually ran on JPEG/PNG versions of linear HDR photos).
+//! (COLMAP usually ran on JPEG/PNG versions of linear HDR photos). The model's frames and
+//! cameras are read first without any photo ([`read_colmap_frames`]), so the working size of
+//! the views can be chosen from the cameras; then [`colmap_views`] reads, resamples and
+//! box-filters one photo at a time (the same streaming read as a `transforms.json`'s,
+//! [`super::views::read_views_limited`]).
 //!
 //! Tests: below — a hand-written two-image model with `OPENCV` distortion and a `PINHOLE`
 //! camera with an off-centre principal point: the resampled images against the analytic
-//! undistorted pattern, and the cameras' projections against COLMAP's.
+//! undistorted pattern, and the cameras' projections against COLMAP's
+//! (`colmap_model_reads_resamples_and_projects`); the streaming read against the full read
+//! downsampled afterwards, bit for bit (`limited_read_box_filters_each_photo_as_it_is_read`).
 
 use super::views::View;
 use glam::{DMat3, DQuat};
@@ -264,10 +270,26 @@ pub fn opal_camera(id: &str, c: &ColmapCamera, r: DMat3, t: DVec3) -> Camera {
     })
 }
 
-/// Reads a COLMAP text model (`model_dir/cameras.txt`, `model_dir/images.txt`) and its images
-/// from `image_dir` as views (resampled onto ideal pinholes, see the module docs); returns the
-/// views (sorted by name) and warnings (masked pixels).
-pub fn read_colmap(model_dir: &Path, image_dir: &Path) -> Result<(Vec<View>, Vec<String>)> {
+/// One image of a COLMAP model before its photo is read ([`read_colmap_frames`]).
+#[derive(Clone, Debug)]
+pub struct ColmapFrame {
+    /// View name (the photo's file stem).
+    pub name: String,
+    /// The photo (`NAME` under the image folder, or the same stem with `.exr`).
+    pub path: std::path::PathBuf,
+    /// COLMAP camera id.
+    pub camera_id: u32,
+    /// Intrinsics of that camera (the photo's size).
+    pub intrinsics: ColmapCamera,
+    /// The Opal camera of the resampled photo ([`opal_camera`]), at the photo's size.
+    pub camera: Camera,
+}
+
+/// Reads a COLMAP text model (`model_dir/cameras.txt`, `model_dir/images.txt`) without reading
+/// any photo: the frames sorted by image name, each with its photo under `image_dir` (which must
+/// exist) and its camera. The cameras alone decide the working size of the views before a photo
+/// is read (as `views::read_frames` does for a `transforms.json`).
+pub fn read_colmap_frames(model_dir: &Path, image_dir: &Path) -> Result<Vec<ColmapFrame>> {
     let cp = model_dir.join("cameras.txt");
     let ip = model_dir.join("images.txt");
     let cams = parse_cameras(&std::fs::read_to_string(&cp).map_err(|e| Error::io(&cp, e))?, &cp)?;
@@ -276,8 +298,7 @@ pub fn read_colmap(model_dir: &Path, image_dir: &Path) -> Result<(Vec<View>, Vec
         return Err(Error::invalid(ip.display().to_string(), "no image"));
     }
     imgs.sort_by(|a, b| a.0.cmp(&b.0));
-    let mut views = Vec::new();
-    let mut warnings = Vec::new();
+    let mut frames = Vec::with_capacity(imgs.len());
     for (name, cid, r, t) in imgs {
         let c = cams.get(&cid).ok_or_else(|| {
             Error::invalid(
@@ -297,27 +318,56 @@ pub fn read_colmap(model_dir: &Path, image_dir: &Path) -> Result<(Vec<View>, Vec
                 ));
             }
         }
-        let src = opal::image::read::read_image(&path)?;
+        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or(name.clone());
+        frames.push(ColmapFrame {
+            camera: opal_camera(&stem, c, r, t),
+            name: stem,
+            path,
+            camera_id: cid,
+            intrinsics: c.clone(),
+        });
+    }
+    Ok(frames)
+}
+
+/// Reads a COLMAP text model (`model_dir/cameras.txt`, `model_dir/images.txt`) and its images
+/// from `image_dir` as views (resampled onto ideal pinholes, see the module docs); returns the
+/// views (sorted by name) and warnings (masked pixels).
+pub fn read_colmap(model_dir: &Path, image_dir: &Path) -> Result<(Vec<View>, Vec<String>)> {
+    colmap_views(read_colmap_frames(model_dir, image_dir)?, None)
+}
+
+/// The views of `frames` ([`read_colmap_frames`]): each photo is read, resampled onto its ideal
+/// pinhole ([`undistort`]) and, with `max_pixels`, box-filtered to at most that many pixels
+/// ([`super::downsample::downsample_view`]) before the next photo is read, so only one photo at
+/// full size is held at a time. The warnings count the masked pixels at full size.
+pub fn colmap_views(frames: Vec<ColmapFrame>, max_pixels: Option<usize>) -> Result<(Vec<View>, Vec<String>)> {
+    let mut views = Vec::with_capacity(frames.len());
+    let mut warnings = Vec::new();
+    for f in frames {
+        let c = &f.intrinsics;
+        let src = opal::image::read::read_image(&f.path)?;
         if (src.width, src.height) != (c.width, c.height) {
             return Err(Error::invalid(
-                path.display().to_string(),
-                format!("image is {}×{} but camera {cid} is {}×{}", src.width, src.height, c.width, c.height),
+                f.path.display().to_string(),
+                format!(
+                    "image is {}×{} but camera {} is {}×{}",
+                    src.width, src.height, f.camera_id, c.width, c.height
+                ),
             ));
         }
         let (image, bad) = undistort(&src, c);
+        drop(src);
         if bad > 0 {
             warnings.push(format!(
                 "{}: {bad} pixels are outside the photo after undistortion or not finite; they are ignored",
-                path.display()
+                f.path.display()
             ));
         }
-        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or(name.clone());
-        views.push(View {
-            name: stem.clone(),
-            camera: opal_camera(&stem, c, r, t),
-            path,
-            image,
-            bad_pixels: bad,
+        let view = View { name: f.name, camera: f.camera, path: f.path, image, bad_pixels: bad };
+        views.push(match max_pixels {
+            Some(m) => super::downsample::downsample_view(view, m),
+            None => view,
         });
     }
     Ok((views, warnings))
@@ -354,9 +404,10 @@ mod tests {
         2 0.9659258262890683 0 0.25881904510252074 0 0.5 0.2 4.1 2 b.exr\n\
         \n";
 
-    #[test]
-    fn colmap_model_reads_resamples_and_projects() {
-        let dir = std::env::temp_dir().join(format!("opal_colmap_{}", std::process::id()));
+    /// Writes the two-image model and its photos (the pattern seen through each camera's
+    /// distortion) into a fresh folder `opal_colmap_<tag>_<pid>`; returns it and the cameras.
+    fn write_model(tag: &str) -> (std::path::PathBuf, HashMap<u32, ColmapCamera>) {
+        let dir = std::env::temp_dir().join(format!("opal_colmap_{tag}_{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(dir.join("cameras.txt"), CAMERAS).unwrap();
         std::fs::write(dir.join("images.txt"), IMAGES).unwrap();
@@ -375,6 +426,12 @@ mod tests {
             let f = std::fs::File::create(dir.join(name)).unwrap();
             opal::image::write::write_exr(&img, std::io::BufWriter::new(f)).unwrap();
         }
+        (dir, cams)
+    }
+
+    #[test]
+    fn colmap_model_reads_resamples_and_projects() {
+        let (dir, cams) = write_model("full");
         let (views, warnings) = read_colmap(&dir, &dir).unwrap();
         assert_eq!(views.len(), 2);
         let imgs = parse_images(IMAGES, Path::new("images.txt")).unwrap();
@@ -407,6 +464,41 @@ mod tests {
         }
         // OPENCV's corners pull in: some pixels fall outside the photo and are masked
         assert!(warnings.len() <= 2);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// The streaming read: the frames (cameras and photo paths) come without reading a photo,
+    /// and each photo box-filtered as it is read is bit for bit the full read downsampled
+    /// afterwards, with the same camera and the same warnings.
+    #[test]
+    fn limited_read_box_filters_each_photo_as_it_is_read() {
+        let (dir, _) = write_model("limited");
+        let (full, full_warnings) = read_colmap(&dir, &dir).unwrap();
+        let frames = read_colmap_frames(&dir, &dir).unwrap();
+        assert_eq!(frames.len(), 2);
+        let max = 1000; // 96×64 photos → 39×26
+        let (small, small_warnings) = colmap_views(frames.clone(), Some(max)).unwrap();
+        assert_eq!(small_warnings, full_warnings);
+        let bits = |i: &Image| i.data.iter().flat_map(|p| p.0.map(f32::to_bits)).collect::<Vec<_>>();
+        for ((f, v), s) in frames.iter().zip(&full).zip(&small) {
+            // the frame's camera is the full read's
+            assert_eq!((f.name.as_str(), f.path.as_path()), (v.name.as_str(), v.path.as_path()));
+            assert_eq!(f.camera.to_world, v.camera.to_world);
+            assert_eq!((f.camera.width, f.camera.height), (v.image.width, v.image.height));
+            let want = crate::delight::downsample::downsample_view(v.clone(), max);
+            assert!(s.image.data.len() <= max && s.image.data.len() < v.image.data.len());
+            assert_eq!((s.image.width, s.image.height), (want.image.width, want.image.height));
+            assert_eq!(bits(&s.image), bits(&want.image), "{}", s.name);
+            assert_eq!(s.bad_pixels, want.bad_pixels);
+            assert_eq!((s.camera.width, s.camera.height), (want.camera.width, want.camera.height));
+            for p in [opal::math::Vec3::new(0.1, -0.2, 0.5), opal::math::Vec3::new(-0.4, 0.3, 1.0)] {
+                assert_eq!(s.camera.project(p), want.camera.project(p));
+            }
+        }
+        // no photo is read for the frames: a broken photo fails only the views
+        std::fs::write(dir.join("b.exr"), b"not an image").unwrap();
+        let frames = read_colmap_frames(&dir, &dir).unwrap();
+        assert!(colmap_views(frames, Some(max)).is_err());
         std::fs::remove_dir_all(&dir).ok();
     }
 

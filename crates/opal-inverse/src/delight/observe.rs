@@ -110,7 +110,7 @@ pub(crate) fn view_sample(
             continue;
         }
         let k = yi as usize * cam.width + xi as usize;
-        if pb.shape[k] != shape || pb.normal[k].dot(ng) < pb.min_cos[k] {
+        if pb.shape(k) != shape || pb.normal(k).dot(ng) < pb.min_cos(k) {
             continue;
         }
         let c = v.image.data[k];
@@ -175,7 +175,7 @@ pub fn region_stats(img: &Image, mask: &[bool]) -> RegionStats {
 /// `shapes[k]` entirely (see [`views::pure_buffer`]).
 pub fn object_masks(scene: &Scene, view: &View, shapes: &[usize]) -> Vec<Vec<bool>> {
     let pb = views::pure_buffer(scene, &view.camera);
-    shapes.iter().map(|&s| pb.shape.iter().map(|&x| x != MIXED && x as usize == s).collect()).collect()
+    shapes.iter().map(|&s| pb.shapes().map(|x| x != MIXED && x as usize == s).collect()).collect()
 }
 
 /// A ray through the centre of pixel (x, y) of a view (helper for tests and tools).

@@ -50,7 +50,9 @@ pub fn delight(
             s.max_view_pixels.unwrap_or(0)
         ));
     }
-    let views: &[View] = coarse.as_deref().unwrap_or(views);
+    // the run's own copy of the views, if any (downsampled, then refined, then divided by the
+    // gains): each replaces the one before, so at most one copy is held besides the caller's
+    let mut owned: Option<Vec<View>> = coarse;
     let inp = Inputs { desc, scene: &scene, s, log };
     // 1. unwrap
     let (selected, not_recovered) = unwrap::select_objects(&scene, s.objects.as_deref())?;
@@ -58,7 +60,8 @@ pub fn delight(
         log(&format!("not recovered: {id} ({why})"));
     }
     let t0 = StageClock::start();
-    let (mut objects, skipped) = unwrap::unwrap_objects(&inp, &selected, views, &mut warnings);
+    let (mut objects, skipped) =
+        unwrap::unwrap_objects(&inp, &selected, owned.as_deref().unwrap_or(views), &mut warnings);
     if objects.is_empty() {
         return Err(Error::invalid("objects", "no object could be unwrapped"));
     }
@@ -71,8 +74,17 @@ pub fn delight(
     cancelled(s)?;
     // 3. per-view pose refinement (off by default); every later step sees the refined views
     let tp = StageClock::start();
-    let (poses, refined) = pose::pipeline_stage(&scene, &objects, views, &s.poses, log, &mut warnings);
-    let views: &[View] = refined.as_deref().unwrap_or(views);
+    let (poses, refined) = pose::pipeline_stage(
+        &scene,
+        &objects,
+        owned.as_deref().unwrap_or(views),
+        &s.poses,
+        log,
+        &mut warnings,
+    );
+    if refined.is_some() {
+        owned = refined;
+    }
     if poses.is_some() {
         timings.push("poses", tp.elapsed());
     }
@@ -81,7 +93,8 @@ pub fn delight(
     // after a pose refinement, the pixels next to an edge are left out (the poses are known to a
     // fraction of a pixel)
     let margin = if poses.is_some() { s.poses.delight_edge_margin } else { 0 };
-    let pure: Vec<PureBuffer> = views
+    let current: &[View] = owned.as_deref().unwrap_or(views);
+    let pure: Vec<PureBuffer> = current
         .iter()
         .map(|v| {
             let p = views::pure_buffer(&scene, &v.camera);
@@ -89,8 +102,12 @@ pub fn delight(
         })
         .collect();
     let (corrected, view_gains) =
-        luminance::view_gains(&inp, &objects, views, &pure, &mut warnings, &mut timings);
-    let views: &[View] = corrected.as_deref().unwrap_or(views);
+        luminance::view_gains(&inp, &objects, current, &pure, &mut warnings, &mut timings);
+    if corrected.is_some() {
+        owned = corrected;
+    }
+    let views: &[View] = owned.as_deref().unwrap_or(views);
+    log(&held_per_view(views, &pure, owned.is_some()));
     // seconds per object of the last stage split by object (the owners of the next; MPI only)
     let mut costs = Vec::new();
     luminance::luminance_maps(&inp, &mut objects, views, &pure, &mut warnings, &mut costs);
@@ -127,6 +144,24 @@ pub fn delight(
         timings,
         t_all,
     ))
+}
+
+/// The log line of the per-view data held for the rest of the run: the views' images (the
+/// caller's and the run's own copy) and the pure-pixel buffers, in MB and bytes per pixel.
+fn held_per_view(views: &[View], pure: &[PureBuffer], own_copy: bool) -> String {
+    let px: usize = views.iter().map(|v| v.image.data.len()).sum();
+    let img = px * std::mem::size_of::<opal::spectrum::Spectrum>() * if own_copy { 2 } else { 1 };
+    let pb: usize = pure.iter().map(|p| p.heap_bytes()).sum();
+    let mb = |b: usize| b as f64 / (1 << 20) as f64;
+    format!(
+        "per-view data held: {} views, {:.2} M pixels: images {:.1} MB ({}), pure-pixel buffers {:.1} MB ({:.1} B/pixel)",
+        views.len(),
+        px as f64 * 1e-6,
+        mb(img),
+        if own_copy { "the given views and the run's copy" } else { "the given views" },
+        mb(pb),
+        pb as f64 / px.max(1) as f64
+    )
 }
 
 /// `Err(Interrupted)` once `s.cancel` is set (a stage boundary before the iterations: nothing

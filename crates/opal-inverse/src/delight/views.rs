@@ -15,8 +15,9 @@
 //! almost no pixel of an 80 k-triangle scan in 256² views was pure (1.4 % of its texels seen).
 //! The super-resolution uses a looser set, [`PureBuffer::covered`]: also the pixels across gentle
 //! creases (its operator follows each sub-pixel ray to its own facet).
+//! The buffer is held for every view for the whole run and stored compactly ([`PureBuffer`]).
 //! Tests: `smooth_scan_pixels_are_pure_creases_are_not`, `gentle_crease_pixels_are_covered_not_pure`,
-//! `flat_scene_covered_equals_pure` below.
+//! `flat_scene_covered_equals_pure`, `compact_pure_buffer_keeps_every_value` below.
 
 // Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
 #![allow(clippy::needless_range_loop)]
@@ -231,21 +232,21 @@ pub fn read_views_limited(path: &Path, max_pixels: Option<usize>) -> Result<(Vec
 pub const MIXED: u32 = u32::MAX;
 
 /// Per-pixel shape shown entirely by the pixel (or [`MIXED`]) and the plane normal there.
+///
+/// Held for every view for the whole run, so stored compactly with the values unchanged (bit for
+/// bit): the covering shape per pixel ([`Self::covered`], `u32`), one bit per pixel for "pure"
+/// (a pure pixel is always covered by its own shape, so [`Self::shape`] is the covering shape
+/// where the bit is set and [`MIXED`] elsewhere), and the (normal, least matching cosine) pairs
+/// shared between the pixels that have the same ones (the pixels of one flat facet all carry
+/// its geometric normal) with a `u32` index per pixel — about 8 bytes per pixel instead of 24;
+/// when most pixels have their own pair (a scan filling the view) the pairs are kept per pixel.
+/// Test: `compact_pure_buffer_keeps_every_value` below.
 #[derive(Clone, Debug)]
 pub struct PureBuffer {
     /// Width.
     pub width: usize,
     /// Height.
     pub height: usize,
-    /// Shape index per pixel or [`MIXED`].
-    pub shape: Vec<u32>,
-    /// Geometric normal at the pixel centre's hit; on a smooth pixel (see [`pure_buffer`]) the
-    /// normal of the plane through the pixel's corner hits.
-    pub normal: Vec<Vec3>,
-    /// Per pixel, the least cosine between [`Self::normal`] and the geometric normal of a surface
-    /// point the pixel may be matched with: `FLAT_COS` (0.999, ~2.5°) on a flat pixel, the
-    /// facets' spread plus [`SMOOTH_MARGIN_DEG`] on a smooth one.
-    pub min_cos: Vec<f32>,
     /// Shape index per pixel or [`MIXED`] under the looser rule of the super-resolution: the
     /// pixel shows one shape entirely (its centre and four inner-corner rays hit it) and its
     /// five facets lie pairwise within [`SMOOTH_MAX_DEG`]: every pure pixel, plus the pixels
@@ -255,6 +256,129 @@ pub struct PureBuffer {
     /// surface point, so a crease inside the pixel is part of its model. Sharp edges (a box's
     /// faces, folds beyond [`SMOOTH_MAX_DEG`]) stay excluded, as do pixels mixing shapes.
     pub covered: Vec<u32>,
+    /// Bit `k % 64` of word `k / 64`: pixel `k` is pure (its shape is `covered[k]`).
+    pure: Vec<u64>,
+    /// The (normal, least matching cosine) of every pixel.
+    planes: Planes,
+}
+
+/// The (normal, least matching cosine) pairs of a [`PureBuffer`].
+#[derive(Clone, Debug)]
+enum Planes {
+    /// The distinct pairs and each pixel's index into them.
+    Shared { index: Vec<u32>, table: Vec<(Vec3, f32)> },
+    /// One pair per pixel (when more than half the pixels have their own).
+    PerPixel(Vec<(Vec3, f32)>),
+}
+
+impl PureBuffer {
+    /// The buffer of per-pixel values: the pure shape (or [`MIXED`]), the (normal, least
+    /// matching cosine) pair and the covering shape. Panics when a pure pixel is not covered by
+    /// its own shape or the lengths differ from `width · height`.
+    pub fn from_pixels(
+        width: usize,
+        height: usize,
+        shape: &[u32],
+        planes: Vec<(Vec3, f32)>,
+        covered: Vec<u32>,
+    ) -> PureBuffer {
+        let n = width * height;
+        assert!(
+            shape.len() == n && planes.len() == n && covered.len() == n,
+            "pure buffer of {width}×{height}"
+        );
+        let mut pure = vec![0u64; n.div_ceil(64)];
+        for (k, (&s, &c)) in shape.iter().zip(&covered).enumerate() {
+            if s != MIXED {
+                assert_eq!(s, c, "pixel {k}: a pure pixel is covered by its shape");
+                pure[k / 64] |= 1 << (k % 64);
+            }
+        }
+        PureBuffer { width, height, covered, pure, planes: share_planes(planes) }
+    }
+
+    /// The shape pixel `k` shows entirely, or [`MIXED`].
+    #[inline]
+    pub fn shape(&self, k: usize) -> u32 {
+        if self.pure[k / 64] >> (k % 64) & 1 == 1 { self.covered[k] } else { MIXED }
+    }
+
+    /// [`Self::shape`] of every pixel in order.
+    pub fn shapes(&self) -> impl Iterator<Item = u32> + '_ {
+        (0..self.covered.len()).map(|k| self.shape(k))
+    }
+
+    /// Geometric normal at pixel `k`'s centre hit; on a smooth pixel (see [`pure_buffer`]) the
+    /// normal of the plane through the pixel's corner hits.
+    #[inline]
+    pub fn normal(&self, k: usize) -> Vec3 {
+        self.plane(k).0
+    }
+
+    /// The least cosine between [`Self::normal`] and the geometric normal of a surface point
+    /// pixel `k` may be matched with: `FLAT_COS` (0.999, ~2.5°) on a flat pixel, the facets'
+    /// spread plus [`SMOOTH_MARGIN_DEG`] on a smooth one.
+    #[inline]
+    pub fn min_cos(&self, k: usize) -> f32 {
+        self.plane(k).1
+    }
+
+    #[inline]
+    fn plane(&self, k: usize) -> (Vec3, f32) {
+        match &self.planes {
+            Planes::Shared { index, table } => table[index[k] as usize],
+            Planes::PerPixel(p) => p[k],
+        }
+    }
+
+    /// The same buffer with the pure shapes replaced by `shape` (an erosion: [`MIXED`] where a
+    /// pixel is no longer pure) and the covering shapes set to them; the planes are kept.
+    pub fn with_shapes(&self, shape: Vec<u32>) -> PureBuffer {
+        assert_eq!(shape.len(), self.covered.len());
+        let mut pure = vec![0u64; shape.len().div_ceil(64)];
+        for (k, &s) in shape.iter().enumerate() {
+            if s != MIXED {
+                pure[k / 64] |= 1 << (k % 64);
+            }
+        }
+        PureBuffer {
+            width: self.width,
+            height: self.height,
+            covered: shape,
+            pure,
+            planes: self.planes.clone(),
+        }
+    }
+
+    /// Bytes held on the heap (the per-view memory of the run).
+    pub fn heap_bytes(&self) -> usize {
+        let planes = match &self.planes {
+            Planes::Shared { index, table } => 4 * index.len() + 16 * table.len(),
+            Planes::PerPixel(p) => 16 * p.len(),
+        };
+        4 * self.covered.len() + 8 * self.pure.len() + planes
+    }
+}
+
+/// The pairs shared between the pixels with identical ones (compared bit for bit), in the order
+/// of their first pixel; per pixel when more than half of them are distinct.
+fn share_planes(planes: Vec<(Vec3, f32)>) -> Planes {
+    let key = |(n, c): &(Vec3, f32)| [n.x.to_bits(), n.y.to_bits(), n.z.to_bits(), c.to_bits()];
+    let mut seen: std::collections::HashMap<[u32; 4], u32> = std::collections::HashMap::new();
+    let mut table = Vec::new();
+    let mut index = Vec::with_capacity(planes.len());
+    for p in &planes {
+        let next = table.len() as u32;
+        let i = *seen.entry(key(p)).or_insert(next);
+        if i == next {
+            table.push(*p);
+            if 2 * table.len() > planes.len() {
+                return Planes::PerPixel(planes);
+            }
+        }
+        index.push(i);
+    }
+    Planes::Shared { index, table }
 }
 
 /// Normals within ~2.5° (cosine 0.999): the same plane.
@@ -278,16 +402,14 @@ pub fn pure_buffer(scene: &Scene, cam: &Camera) -> PureBuffer {
     let rows: Vec<Vec<(u32, Vec3, f32, u32)>> =
         (0..h).into_par_iter().map(|y| (0..w).map(|x| pure_pixel(scene, cam, x, y)).collect()).collect();
     let mut shape = Vec::with_capacity(w * h);
-    let mut normal = Vec::with_capacity(w * h);
-    let mut min_cos = Vec::with_capacity(w * h);
+    let mut planes = Vec::with_capacity(w * h);
     let mut covered = Vec::with_capacity(w * h);
     for (s, n, c, cv) in rows.into_iter().flatten() {
         shape.push(s);
-        normal.push(n);
-        min_cos.push(c);
+        planes.push((n, c));
         covered.push(cv);
     }
-    PureBuffer { width: w, height: h, shape, normal, min_cos, covered }
+    PureBuffer::from_pixels(w, h, &shape, planes, covered)
 }
 
 /// One pixel of [`pure_buffer`]: (shape or [`MIXED`], normal, least matching cosine, covering
@@ -407,14 +529,14 @@ mod tests {
                 let k = y * cam.width + x;
                 if h.shape == 0 {
                     ball_hit += 1;
-                    ball_pure += (pb.shape[k] == 0) as usize;
+                    ball_pure += (pb.shape(k) == 0) as usize;
                 } else {
                     // within ~0.3 px of a cube edge: two coordinates near ±0.3 from the centre
                     let q = (h.p - Vec3::new(0.6, 0.0, 0.0)).abs();
                     let near = [q.x, q.y, q.z].iter().filter(|&&c| c > 0.3 - 0.004).count();
                     if near >= 2 {
                         cube_edge += 1;
-                        cube_edge_pure += (pb.shape[k] != MIXED) as usize;
+                        cube_edge_pure += (pb.shape(k) != MIXED) as usize;
                     }
                 }
             }
@@ -423,9 +545,10 @@ mod tests {
         assert!(cube_edge > 10, "{cube_edge}");
         assert_eq!(cube_edge_pure, 0, "pixels on the cube's edges must be mixed");
         // a flat pixel keeps the strict plane test, a smooth one a wider one
-        assert!(pb.min_cos.iter().all(|&c| c <= FLAT_COS));
-        // the super-resolution's rule: every pure pixel is covered, a 90° edge is not
-        assert!(pb.shape.iter().zip(&pb.covered).all(|(&s, &c)| s == MIXED || c == s));
+        assert!((0..cam.width * cam.height).all(|k| pb.min_cos(k) <= FLAT_COS));
+        // the super-resolution's rule: every pure pixel is covered (`PureBuffer::from_pixels`
+        // checks it), a 90° edge is not
+        assert!(pb.shapes().zip(&pb.covered).all(|(s, &c)| s == MIXED || c == s));
         let cube_edge_covered = (0..cam.width * cam.height)
             .filter(|&k| {
                 let r =
@@ -497,11 +620,11 @@ mod tests {
                 let k = y * 64 + x;
                 if h.p.x.abs() < 0.15 * px {
                     crease += 1;
-                    crease_pure += (pb.shape[k] != MIXED) as usize;
+                    crease_pure += (pb.shape(k) != MIXED) as usize;
                     crease_covered += (pb.covered[k] == 0) as usize;
                 } else if h.p.x.abs() > 1.5 * px && h.p.x.abs() < 0.9 {
                     beside += 1;
-                    beside_pure += (pb.shape[k] == 0 && pb.covered[k] == 0) as usize;
+                    beside_pure += (pb.shape(k) == 0 && pb.covered[k] == 0) as usize;
                 }
             }
         }
@@ -509,6 +632,55 @@ mod tests {
         assert_eq!(crease_pure, 0, "crease pixels are not pure");
         assert_eq!(crease_covered, crease, "crease pixels are covered");
         assert_eq!(beside_pure, beside, "pixels beside the crease are pure and covered");
+    }
+
+    /// Per-pixel values through the compact storage, for a buffer of few distinct planes (shared)
+    /// and one of mostly distinct planes (kept per pixel): every pure shape, covering shape,
+    /// normal and cosine read back bit for bit, and the shared storage takes ≤ 9 bytes per pixel.
+    #[test]
+    fn compact_pure_buffer_keeps_every_value() {
+        let (w, h) = (37, 23);
+        let n = w * h;
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 33) as u32
+        };
+        for distinct in [5u32, u32::MAX] {
+            let (mut shape, mut planes, mut covered) = (vec![], vec![], vec![]);
+            for _ in 0..n {
+                let c = if next() % 7 == 0 { MIXED } else { next() % 3 };
+                let s = if c != MIXED && next() % 4 != 0 { c } else { MIXED };
+                let t = next() % distinct;
+                let nrm = Vec3::new(t as f32 * 0.1, -0.3, (t % 11) as f32);
+                let cos = if t % 2 == 0 { FLAT_COS } else { 0.9 + (t % 97) as f32 * 1e-4 };
+                shape.push(s);
+                planes.push((nrm, cos));
+                covered.push(c);
+            }
+            let pb = PureBuffer::from_pixels(w, h, &shape, planes.clone(), covered.clone());
+            for k in 0..n {
+                assert_eq!(pb.shape(k), shape[k], "pixel {k}");
+                assert_eq!(pb.covered[k], covered[k]);
+                assert_eq!(
+                    pb.normal(k).to_array().map(f32::to_bits),
+                    planes[k].0.to_array().map(f32::to_bits)
+                );
+                assert_eq!(pb.min_cos(k).to_bits(), planes[k].1.to_bits());
+            }
+            assert!(pb.shapes().eq(shape.iter().copied()));
+            if distinct == 5 {
+                assert!(pb.heap_bytes() <= 9 * n, "{} bytes", pb.heap_bytes());
+            } else {
+                assert!(pb.heap_bytes() <= 21 * n, "{} bytes", pb.heap_bytes());
+            }
+            // an erosion keeps the planes and makes the covering shapes the pure ones
+            let eroded: Vec<u32> =
+                shape.iter().enumerate().map(|(k, &s)| if k % 5 == 0 { MIXED } else { s }).collect();
+            let e = pb.with_shapes(eroded.clone());
+            assert!(e.shapes().eq(eroded.iter().copied()) && e.covered == eroded);
+            assert!((0..n).all(|k| e.normal(k) == pb.normal(k) && e.min_cos(k) == pb.min_cos(k)));
+        }
     }
 
     /// The reference Cornell box (walls and boxes: flat faces meeting at 90°) at 128² from every
@@ -526,8 +698,8 @@ mod tests {
         assert!(!scene.cameras.is_empty());
         for cam in &scene.cameras {
             let pb = pure_buffer(&scene, cam);
-            assert!(pb.shape.iter().filter(|&&s| s == MIXED).count() > 0);
-            assert_eq!(pb.shape, pb.covered);
+            assert!(pb.shapes().filter(|&s| s == MIXED).count() > 0);
+            assert!(pb.shapes().eq(pb.covered.iter().copied()));
         }
     }
 }

@@ -16,7 +16,6 @@ use opal::image::Image;
 use opal::integrator::path::{PathSettings, render};
 use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
-use opal_inverse::delight::downsample::downsample_view;
 use opal_inverse::delight::views::{View, read_views_limited};
 use opal_inverse::delight::{
     DelightResult, DelightSettings, LightPaths, ObjectResult, PoseRefinement, PoseSettings, StageClock,
@@ -401,13 +400,20 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
                 &a.output.join("transforms.json"),
                 serde_json::to_string_pretty(&tj)?.as_bytes(),
             )?;
-            p.apply(&views)
+            let refined = p.apply(&views);
+            // one copy of the views at a time
+            drop(views);
+            refined
         }
         None => views,
     };
     // photos and re-renders are compared on the views divided by their estimated gains
     let views = match &r.view_gains {
-        Some(g) => apply_view_gains(&views, g),
+        Some(g) => {
+            let divided = apply_view_gains(&views, g);
+            drop(views);
+            divided
+        }
         None => views,
     };
     write_outputs(a, &desc, &views, &r, &vwarn, &working, log)
@@ -427,7 +433,8 @@ pub struct Working {
 
 /// Reads the views at their working size: `--max-view-pixels N` (0 = as they are), else the
 /// automatic size from the cameras (read before any image; `opal_inverse::delight::working_size`).
-/// Each photo is box-filtered as it is read (a COLMAP model's photos after all are read).
+/// Each photo is box-filtered as it is read (a COLMAP model's photos after their resampling),
+/// so one photo at full size is held at a time.
 fn read_working_views(
     a: &DelightArgs,
     desc: &SceneDesc,
@@ -468,14 +475,17 @@ fn read_working_views(
             .into_iter()
             .find(|d| d.is_dir())
             .unwrap_or_else(|| a.views.clone());
-        let (v, w) = opal_inverse::delight::colmap::read_colmap(&a.views, &images)
-            .with_context(|| format!("cannot read the COLMAP model {}", a.views.display()))?;
-        let sizes: Vec<[usize; 2]> = v.iter().map(|v| [v.image.width, v.image.height]).collect();
+        use opal_inverse::delight::colmap::{colmap_views, read_colmap_frames};
+        let context = || format!("cannot read the COLMAP model {}", a.views.display());
+        let frames = read_colmap_frames(&a.views, &images).with_context(context)?;
+        let sizes: Vec<[usize; 2]> =
+            frames.iter().map(|f| [f.intrinsics.width, f.intrinsics.height]).collect();
         let (limit, j) = match a.max_view_pixels {
             Some(m) => given(m),
-            None => auto(&v.iter().map(|v| v.camera.clone()).collect::<Vec<_>>())?,
+            None => auto(&frames.iter().map(|f| f.camera.clone()).collect::<Vec<_>>())?,
         };
-        (v.into_iter().map(|v| downsample_view(v, limit.unwrap_or(0))).collect(), w, limit, sizes, j)
+        let (v, w) = colmap_views(frames, limit).with_context(context)?;
+        (v, w, limit, sizes, j)
     } else {
         let frames = opal_inverse::delight::views::read_frames(&a.views)
             .with_context(|| format!("cannot read the views {}", a.views.display()))?;

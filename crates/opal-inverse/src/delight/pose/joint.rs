@@ -134,7 +134,7 @@ fn cross_term(o: &Other, xw: DVec3, shape: Option<u32>) -> Option<[f64; 6]> {
         return None;
     }
     let idx = iy * w + ix;
-    let sh = o.pure.shape[idx];
+    let sh = o.pure.shape(idx);
     if sh == MIXED || Some(sh) != shape {
         return None;
     }

@@ -305,7 +305,7 @@ pub fn erode(pb: &PureBuffer, r: usize) -> PureBuffer {
 /// pixels differ when their normals are further apart than either pixel's matching tolerance
 /// ([`PureBuffer::min_cos`]).
 pub fn erode_smooth(pb: &PureBuffer, r: usize) -> PureBuffer {
-    erode_with(pb, r, |i, j| pb.min_cos[i].min(pb.min_cos[j]))
+    erode_with(pb, r, |i, j| pb.min_cos(i).min(pb.min_cos(j)))
 }
 
 fn erode_with(pb: &PureBuffer, r: usize, min_cos: impl Fn(usize, usize) -> f32 + Sync) -> PureBuffer {
@@ -314,7 +314,7 @@ fn erode_with(pb: &PureBuffer, r: usize, min_cos: impl Fn(usize, usize) -> f32 +
     let shape: Vec<u32> = (0..w * h)
         .into_par_iter()
         .map(|i| {
-            let s0 = pb.shape[i];
+            let s0 = pb.shape(i);
             if s0 == views::MIXED {
                 return s0;
             }
@@ -322,7 +322,7 @@ fn erode_with(pb: &PureBuffer, r: usize, min_cos: impl Fn(usize, usize) -> f32 +
             for yy in (y - r).max(0)..=(y + r).min(h as i64 - 1) {
                 for xx in (x - r).max(0)..=(x + r).min(w as i64 - 1) {
                     let j = yy as usize * w + xx as usize;
-                    if pb.shape[j] != s0 || pb.normal[j].dot(pb.normal[i]) < min_cos(i, j) {
+                    if pb.shape(j) != s0 || pb.normal(j).dot(pb.normal(i)) < min_cos(i, j) {
                         return views::MIXED;
                     }
                 }
@@ -330,8 +330,7 @@ fn erode_with(pb: &PureBuffer, r: usize, min_cos: impl Fn(usize, usize) -> f32 +
             s0
         })
         .collect();
-    let covered = shape.clone();
-    PureBuffer { width: w, height: h, shape, normal: pb.normal.clone(), min_cos: pb.min_cos.clone(), covered }
+    pb.with_shapes(shape)
 }
 
 /// Rotation vector (radians) of a rotation matrix.
