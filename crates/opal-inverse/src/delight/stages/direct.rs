@@ -10,6 +10,7 @@
 
 use crate::delight::atlas::NO_TRI;
 use crate::delight::direct::direct_irradiance_split;
+use crate::delight::progress::Stage;
 use crate::delight::{DelightSettings, ObjectResult};
 use opal::scene::Scene;
 
@@ -22,10 +23,14 @@ pub(in crate::delight) fn direct_stage(
 ) -> [f32; 3] {
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
+    let texels: usize = objects.iter().map(|o| o.atlas.width * o.atlas.height).sum();
+    let bar = Stage::start(s.progress.as_ref(), "direct", texels as u64);
     for (j, o) in objects.iter_mut().enumerate() {
         let samples = (s.direct_samples, s.direct_pilot);
         o.ed = direct_irradiance_split(scene, &o.atlas, samples, s.seed, 0xED00 + j as u64, comm);
+        bar.step((o.atlas.width * o.atlas.height) as u64);
     }
+    bar.finish();
     scene_average(objects)
 }
 
