@@ -25,6 +25,7 @@ use opal::integrator::path::{PathSettings, render};
 use opal::math::Vec2;
 use opal::scene::Scene;
 use opal::scene::desc::{SceneDesc, TextureDesc};
+use opal_inverse::delight::superres;
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
     DelightResult, DelightSettings, LightPaths, ViewGainMode, ViewGainSettings, delight,
@@ -639,9 +640,23 @@ fn mitsuba_cbox_acceptance() {
         .ok()
         .and_then(|v| v.parse().ok())
         .map_or(DelightSettings::default().light_paths, LightPaths::Fixed);
-    let s = DelightSettings { light_paths: paths, iterations: 5, tolerance: 0.0, ..Default::default() };
+    // OPAL_SR_CG_TOLERANCE = the super-resolution's noise stop rule τ (0: the fixed 6 × 60 steps)
+    let mut sr = superres::SrSettings::default();
+    if let Some(t) = std::env::var("OPAL_SR_CG_TOLERANCE").ok().and_then(|v| v.parse().ok()) {
+        sr.cg_tolerance = t;
+    }
+    let s = DelightSettings {
+        light_paths: paths,
+        iterations: 5,
+        tolerance: 0.0,
+        superres: Some(sr),
+        ..Default::default()
+    };
     let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
     let worst = report(&r, &desc);
+    for o in &r.objects {
+        println!("{:18} superres {:?}", o.id, o.superres);
+    }
     let truth = opal::image::read::read_image(&dir.join("textures/backwall_albedo.exr")).unwrap();
     let (psnr, n) = backwall_psnr(&r, &truth);
     println!(
