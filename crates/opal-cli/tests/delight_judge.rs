@@ -1,9 +1,9 @@
-//! Judging an `opal delight` output folder against a Mitsuba 3 data set whose scene.xml holds
-//! the true albedos (`bench/scripts/room_multiview.py`: constant colours and bitmap textures):
-//! issue 17/23's accuracy goals on the CLI defaults. Ignored (needs the data set and a finished
-//! run):
+//! Judging an `opal delight` output folder against a data set whose scene.xml holds the true
+//! albedos as constant colours and bitmap textures (`bench/scripts/room_multiview.py`, the
+//! shared Cornell box): issue 17/23's accuracy goals on the CLI defaults. Ignored (needs the
+//! data set and a finished run):
 //!
-//! `OPAL_ROOM_DIR=DATA OPAL_DELIGHT_OUT=OUT cargo test --release -p opal-cli --test delight_judge
+//! `OPAL_DATA_DIR=DATA OPAL_DELIGHT_OUT=OUT cargo test --release -p opal-cli --test delight_judge
 //! -- --ignored --nocapture`
 //!
 //! Constant objects: `mean_albedo_seen` of report.json against the scene's reflectance, per
@@ -70,9 +70,9 @@ fn psnr_at_cameras(
 }
 
 #[test]
-#[ignore = "needs OPAL_ROOM_DIR (bench/scripts/room_multiview.py) and OPAL_DELIGHT_OUT (an opal delight output)"]
-fn judge_room_output() {
-    let (data, out) = (env_dir("OPAL_ROOM_DIR"), env_dir("OPAL_DELIGHT_OUT"));
+#[ignore = "needs OPAL_DATA_DIR (scene.xml with the true albedos, transforms.json) and OPAL_DELIGHT_OUT (an opal delight output)"]
+fn judge_output() {
+    let (data, out) = (env_dir("OPAL_DATA_DIR"), env_dir("OPAL_DELIGHT_OUT"));
     let desc = opal::scene::load::load_mitsuba_xml(&data.join("scene.xml"), &[]).unwrap();
     let scene = Scene::build(&desc).unwrap();
     let (views, _) = opal_inverse::delight::views::read_views(&data.join("transforms.json")).unwrap();
