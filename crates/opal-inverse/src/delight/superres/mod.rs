@@ -106,15 +106,7 @@ pub fn superres_luminance(
     if a.mesh.uvs.len() != a.mesh.positions.len() {
         return None;
     }
-    let mut rows: Vec<Row> = Vec::new();
-    for (v, pb) in views.iter().zip(pure) {
-        let mut vr = operator::view_rows(scene, shape, a, v, pb, s.subsamples.max(1));
-        let gen_ss = s.diagnostics.synth_subsamples;
-        let fine = if gen_ss > 0 { operator::view_rows(scene, shape, a, v, pb, gen_ss) } else { Vec::new() };
-        let fine: std::collections::HashMap<u32, &Row> = fine.iter().map(|r| (r.pix, r)).collect();
-        diag::diag_residual(v, &mut vr, a, &fine, &s.diagnostics);
-        rows.extend(vr);
-    }
+    let mut rows = all_rows(scene, shape, a, views, pure, s);
     if rows.is_empty() {
         return None;
     }
@@ -125,57 +117,17 @@ pub fn superres_luminance(
         None => vec![1.0; n],
     };
     let shade = gutters::tie_gutters(&mut rows, a, &sd_t);
-    // unknowns: texels touched by some pixel
-    let mut colw = vec![0f32; n];
-    for r in &rows {
-        for &(c, v) in &r.entries {
-            colw[c as usize] += v;
-        }
-    }
-    let mut idx = vec![u32::MAX; n];
-    let mut texel_of = Vec::new();
-    for i in 0..n {
-        if colw[i] > 0.0 {
-            idx[i] = texel_of.len() as u32;
-            texel_of.push(i);
-        }
-    }
+    let (colw, idx, texel_of) = unknowns(&rows, n);
     let m = texel_of.len();
     // scale: mean luminance of the observations
     let mean = rows.iter().map(|r| super::luminance(r.y) as f64).sum::<f64>() / rows.len() as f64;
     let scale = if mean > 0.0 { mean as f32 } else { 1.0 };
     // shading: the unknowns are K = B / sh (sh normalised to mean 1 over the unknowns), so the
     // edge prior acts on the albedo, not on the lighting's gradients and shadows
-    let mut sh = vec![1f32; m];
-    let mut sh_mean = 1f64;
-    if shading.is_some() {
-        let mean = texel_of.iter().map(|&t| sd_t[t] as f64).sum::<f64>() / m.max(1) as f64;
-        if mean > 0.0 {
-            sh_mean = mean;
-            for (j, &t) in texel_of.iter().enumerate() {
-                sh[j] = (sd_t[t] as f64 / mean).max(1e-3) as f32;
-            }
-        }
-    }
+    let (sh, sh_mean) =
+        if shading.is_some() { shading_per_unknown(&sd_t, &texel_of) } else { (vec![1f32; m], 1f64) };
     let (rs, row_noise_per_rel2) = row_weights(&rows, (init, init_obs), mean, scale, shading.is_some());
-    let mut ptr = Vec::with_capacity(rows.len() + 1);
-    ptr.push(0);
-    let mut col = Vec::new();
-    let mut val = Vec::new();
-    let mut y = Vec::with_capacity(rows.len());
-    for ((r, sr), &w) in rows.iter().zip(&shade).zip(&rs) {
-        for (&(c, v), &st) in r.entries.iter().zip(sr) {
-            // st: the tap-weighted shading of the texels behind this column (its own, and the
-            // gutters tied to it); the floor as for `sh`
-            let j = idx[c as usize];
-            col.push(j);
-            val.push(v * ((st as f64 / sh_mean).max(1e-3) as f32) * w);
-        }
-        ptr.push(col.len());
-        y.push(r.y.map(|c| c * w / scale));
-    }
-    drop(rows);
-    let amat = Csr { ptr, col, val, ncols: m };
+    let (amat, y) = weighted_operator(rows, &shade, &rs, &idx, sh_mean, scale, m);
     let nrows = amat.rows();
     let sys = solve::System::new(amat, &y, prior_edges(a, &idx));
     drop(y);
@@ -246,6 +198,89 @@ pub fn superres_luminance(
         s,
     );
     Some((out, obs, info))
+}
+
+/// The shading per unknown in units of its mean over the unknowns (floored at 10⁻³), and that
+/// mean (1 when it is not positive: then the shading is 1).
+fn shading_per_unknown(sd_t: &[f32], texel_of: &[usize]) -> (Vec<f32>, f64) {
+    let m = texel_of.len();
+    let mean = texel_of.iter().map(|&t| sd_t[t] as f64).sum::<f64>() / m.max(1) as f64;
+    if mean > 0.0 {
+        (texel_of.iter().map(|&t| (sd_t[t] as f64 / mean).max(1e-3) as f32).collect(), mean)
+    } else {
+        (vec![1f32; m], 1.0)
+    }
+}
+
+/// The operator's rows of every view (with the error-analysis hook applied).
+fn all_rows(
+    scene: &Scene,
+    shape: u32,
+    a: &Atlas,
+    views: &[View],
+    pure: &[PureBuffer],
+    s: &SrSettings,
+) -> Vec<Row> {
+    let mut rows: Vec<Row> = Vec::new();
+    for (v, pb) in views.iter().zip(pure) {
+        let mut vr = operator::view_rows(scene, shape, a, v, pb, s.subsamples.max(1));
+        let gen_ss = s.diagnostics.synth_subsamples;
+        let fine = if gen_ss > 0 { operator::view_rows(scene, shape, a, v, pb, gen_ss) } else { Vec::new() };
+        let fine: std::collections::HashMap<u32, &Row> = fine.iter().map(|r| (r.pix, r)).collect();
+        diag::diag_residual(v, &mut vr, a, &fine, &s.diagnostics);
+        rows.extend(vr);
+    }
+    rows
+}
+
+/// The unknowns, the texels some pixel touches: per texel its total tap weight, its unknown's
+/// index (`u32::MAX`: none), and per unknown its texel.
+fn unknowns(rows: &[Row], n: usize) -> (Vec<f32>, Vec<u32>, Vec<usize>) {
+    let mut colw = vec![0f32; n];
+    for r in rows {
+        for &(c, v) in &r.entries {
+            colw[c as usize] += v;
+        }
+    }
+    let mut idx = vec![u32::MAX; n];
+    let mut texel_of = Vec::new();
+    for i in 0..n {
+        if colw[i] > 0.0 {
+            idx[i] = texel_of.len() as u32;
+            texel_of.push(i);
+        }
+    }
+    (colw, idx, texel_of)
+}
+
+/// The weighted operator on the unknowns and the weighted observations in units of `scale`:
+/// each entry × the tap-weighted shading behind it (over its mean `sh_mean`) × the row weight.
+fn weighted_operator(
+    rows: Vec<Row>,
+    shade: &[Vec<f32>],
+    rs: &[f32],
+    idx: &[u32],
+    sh_mean: f64,
+    scale: f32,
+    m: usize,
+) -> (Csr, Vec<[f32; 3]>) {
+    let mut ptr = Vec::with_capacity(rows.len() + 1);
+    ptr.push(0);
+    let mut col = Vec::new();
+    let mut val = Vec::new();
+    let mut y = Vec::with_capacity(rows.len());
+    for ((r, sr), &w) in rows.iter().zip(shade).zip(rs) {
+        for (&(c, v), &st) in r.entries.iter().zip(sr) {
+            // st: the tap-weighted shading of the texels behind this column (its own, and the
+            // gutters tied to it); the floor as for `sh`
+            let j = idx[c as usize];
+            col.push(j);
+            val.push(v * ((st as f64 / sh_mean).max(1e-3) as f32) * w);
+        }
+        ptr.push(col.len());
+        y.push(r.y.map(|c| c * w / scale));
+    }
+    (Csr { ptr, col, val, ncols: m }, y)
 }
 
 /// Row weights and the noise they give a row: with a shading, rows are weighted for relative
