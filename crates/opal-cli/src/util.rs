@@ -96,6 +96,39 @@ pub fn progress(len: u64, msg: &str) -> ProgressBar {
     pb
 }
 
+/// Runs `f` (e.g. printing a log line) with the bar of [`progress`] made last hidden, so the
+/// line does not tear it; the bar is drawn again after.
+pub fn suspend_progress<R>(f: impl FnOnce() -> R) -> R {
+    let pb = CURRENT.lock().unwrap_or_else(|e| e.into_inner()).clone();
+    match pb {
+        Some(pb) if !pb.is_finished() && !pb.is_hidden() => pb.suspend(f),
+        _ => f(),
+    }
+}
+
+/// A progress callback `(stage, done, total)` for a library's long stages (e.g.
+/// `opal_inverse::delight::Progress`): one bar of [`progress`] per stage (position and length
+/// in the stage's units, with an estimate of the time left), removed when the stage is done or
+/// the next one starts. Hidden with `--quiet` or when stderr is not a terminal, as every bar.
+pub fn stage_progress() -> impl Fn(&str, u64, u64) + Send + Sync + 'static {
+    let current: std::sync::Mutex<Option<(String, ProgressBar)>> = std::sync::Mutex::new(None);
+    move |stage, done, total| {
+        let mut g = current.lock().unwrap_or_else(|e| e.into_inner());
+        if g.as_ref().is_none_or(|(s, _)| s != stage) {
+            if let Some((_, pb)) = g.take() {
+                pb.finish_and_clear();
+            }
+            *g = Some((stage.to_string(), progress(total, stage)));
+        }
+        let Some((_, pb)) = g.as_ref() else { return };
+        pb.set_length(total);
+        pb.set_position(done);
+        if done >= total {
+            pb.finish_and_clear();
+        }
+    }
+}
+
 /// Writes a file atomically: the content goes to a temporary file in the target folder, which
 /// is renamed into place only when `write` succeeded. A crash never leaves a half-written file.
 /// In a job of several processes only rank 0 writes (the others return `Ok` at once; see

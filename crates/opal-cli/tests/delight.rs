@@ -97,7 +97,10 @@ fn tiny_run_sized(dir: &Path, scene: &Path, extra: &[&str], res: usize) -> (Path
     ];
     args.extend_from_slice(extra);
     let o = opal(&args);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    // stderr is a pipe here: the stages' progress bars are hidden (log lines only)
+    assert!(!err.contains("(eta ") && !err.contains('\r'), "{err}");
     (out, serde_json::from_slice(&o.stdout).unwrap())
 }
 
@@ -153,12 +156,25 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "mean_albedo_seen",
         "mean_albedo",
         "clamped_texel_channels",
+        "superres",
         "texture",
         "mesh",
         "last_error_map",
     ];
+    let sr_keys = [
+        "reweightings",
+        "cg_steps",
+        "residual_to_noise",
+        "relative_residual",
+        "converged",
+        "photo_noise",
+        "prior_weight",
+    ];
     for o in report["objects"].as_array().unwrap() {
         common::assert_keys("delight --json object", o, &obj_keys, "delight.md");
+        if !o["superres"].is_null() {
+            common::assert_keys("delight --json object superres", &o["superres"], &sr_keys, "delight.md");
+        }
     }
     let written: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
@@ -299,6 +315,8 @@ fn view_gains_in_report() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(!err.contains("iteration 1") && !err.contains("luminance "), "{err}");
+    // on a pipe with --quiet: the warnings and nothing else (no progress bar either)
+    assert!(err.lines().all(|l| l.starts_with("warning: ")), "{err}");
     assert!(err.lines().any(|l| l.starts_with("warning: ") && l.contains("'v4'")), "{err}");
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let g = &report["view_gains"];

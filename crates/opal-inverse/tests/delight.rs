@@ -25,6 +25,7 @@ use opal::integrator::path::{PathSettings, render};
 use opal::math::Vec2;
 use opal::scene::Scene;
 use opal::scene::desc::{SceneDesc, TextureDesc};
+use opal_inverse::delight::superres;
 use opal_inverse::delight::views::{View, read_views};
 use opal_inverse::delight::{
     DelightResult, DelightSettings, LightPaths, ViewGainMode, ViewGainSettings, delight,
@@ -639,9 +640,23 @@ fn mitsuba_cbox_acceptance() {
         .ok()
         .and_then(|v| v.parse().ok())
         .map_or(DelightSettings::default().light_paths, LightPaths::Fixed);
-    let s = DelightSettings { light_paths: paths, iterations: 5, tolerance: 0.0, ..Default::default() };
+    // OPAL_SR_CG_TOLERANCE = the super-resolution's noise stop rule τ (0: the fixed 6 × 60 steps)
+    let mut sr = superres::SrSettings::default();
+    if let Some(t) = std::env::var("OPAL_SR_CG_TOLERANCE").ok().and_then(|v| v.parse().ok()) {
+        sr.cg_tolerance = t;
+    }
+    let s = DelightSettings {
+        light_paths: paths,
+        iterations: 5,
+        tolerance: 0.0,
+        superres: Some(sr),
+        ..Default::default()
+    };
     let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
     let worst = report(&r, &desc);
+    for o in &r.objects {
+        println!("{:18} superres {:?}", o.id, o.superres);
+    }
     let truth = opal::image::read::read_image(&dir.join("textures/backwall_albedo.exr")).unwrap();
     let (psnr, n) = backwall_psnr(&r, &truth);
     println!(
@@ -819,4 +834,60 @@ fn env_small_8m_paths_within_1_percent() {
     let worst = report(&r, &desc);
     assert_eq!(truth_albedos(&desc).len(), 5);
     assert!(worst < 0.01, "constant albedos within 1 % at 8 M paths: worst {worst}");
+}
+
+/// The progress callback (`DelightSettings::progress`): every long stage reports, in pipeline
+/// order, a constant total, a first report of 0, a last one of the total, and positions that
+/// never decrease (the light-tracing and post-processing stages once per pass); the albedos are
+/// the same bits as without the callback.
+#[test]
+fn progress_is_monotone_per_stage() {
+    use std::sync::{Arc, Mutex};
+    let mut desc = load(&data().join("scene.xml"));
+    let views = small_views(&mut desc, 32);
+    let base = DelightSettings { iterations: 2, light_paths: LightPaths::Fixed(200_000), ..small_settings() };
+    let calls: Arc<Mutex<Vec<(String, u64, u64)>>> = Arc::default();
+    let c = calls.clone();
+    let s = DelightSettings {
+        progress: Some(opal_inverse::delight::Progress::new(move |st, d, t| {
+            c.lock().unwrap().push((st.to_string(), d, t))
+        })),
+        ..base.clone()
+    };
+    let r = delight(&desc, &views, &s, &|_| {}).unwrap();
+    let plain = delight(&desc, &views, &base, &|_| {}).unwrap();
+    assert_eq!(kd_hash(&r), kd_hash(&plain));
+    let calls = calls.lock().unwrap();
+    // stages in the order of their first report
+    let mut order: Vec<&str> = Vec::new();
+    for (st, _, _) in calls.iter() {
+        if order.last() != Some(&st.as_str()) {
+            assert!(!order.contains(&st.as_str()), "stage {st} reported again after another: {order:?}");
+            order.push(st);
+        }
+    }
+    let want = [
+        "unwrap",
+        "direct",
+        "luminance",
+        "gather",
+        "light tracing 1",
+        "post 1",
+        "superres",
+        "light tracing 2",
+        "post 2",
+    ];
+    assert_eq!(order, want);
+    for st in want {
+        let mine: Vec<(u64, u64)> = calls.iter().filter(|c| c.0 == st).map(|c| (c.1, c.2)).collect();
+        let total = mine[0].1;
+        assert!(total > 0, "{st}");
+        assert_eq!(mine[0].0, 0, "{st}: {mine:?}");
+        assert_eq!(mine.last().unwrap().0, total, "{st}: {mine:?}");
+        assert!(mine.iter().all(|&(_, t)| t == total), "{st}: {mine:?}");
+        assert!(mine.windows(2).all(|w| w[0].0 <= w[1].0), "{st}: {mine:?}");
+    }
+    // the light tracing reports per batch: more than a start and an end
+    let lt = calls.iter().filter(|c| c.0 == "light tracing 1").count();
+    assert!(lt > 2, "{lt}");
 }

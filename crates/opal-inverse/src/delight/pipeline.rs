@@ -8,6 +8,7 @@
 //! `opal delight` tests.
 
 use super::albedo::{fill_unseen, initial_kd};
+use super::progress::Stage;
 use super::stages::outputs::{Finished, assemble, debug_dump};
 use super::stages::{Inputs, direct, iterate, luminance, unwrap};
 use super::timing::{StageClock, Timings};
@@ -118,8 +119,10 @@ pub fn delight(
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
     // the gather texels of all objects split across the processes in one exchange
+    let bar = (s.gather_rays > 0).then(|| Stage::start(s.progress.as_ref(), "gather", 1));
     let gathered =
         (s.gather_rays > 0).then(|| gather::gather_samples(&scene, &objects, s.gather_rays, s.seed, comm));
+    drop(bar);
     // objects split across the processes (each object's gathered map and albedo by one rank,
     // then shared)
     let g = gathered.as_ref();

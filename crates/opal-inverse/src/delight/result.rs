@@ -37,6 +37,9 @@ pub struct ObjectResult {
     pub seen_fraction: f64,
     /// Texels where `Kd` hit the upper bound 1 in the last update.
     pub clamped: usize,
+    /// How the super-resolved luminance map was solved (steps, final residual); `None` when it
+    /// was not (back-projection kept, or resumed from a checkpoint after it).
+    pub superres: Option<super::superres::SrInfo>,
 }
 
 impl ObjectResult {

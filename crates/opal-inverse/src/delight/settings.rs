@@ -106,6 +106,9 @@ pub struct DelightSettings {
     /// one-process result bit for bit, so all ranks run the same de-lighting. `None`: this
     /// process alone. Unwrapping, view gains and luminance maps run in full on every rank.
     pub comm: Option<std::sync::Arc<dyn opal::dist::Comm>>,
+    /// Called with `(stage, done, total)` as the long stages advance ([`super::progress`]);
+    /// `None`: no reports.
+    pub progress: Option<super::Progress>,
 }
 
 /// Debug and error-analysis outputs of [`delight`](super::delight); [`Default`] = all off (no
@@ -150,6 +153,7 @@ impl Default for DelightSettings {
             resume: false,
             cancel: None,
             comm: None,
+            progress: None,
         }
     }
 }

@@ -177,6 +177,7 @@ mod tests {
                     near_emitter: false,
                     seen_fraction: 1.0,
                     clamped: 0,
+                    superres: None,
                     atlas: a,
                 }
             })

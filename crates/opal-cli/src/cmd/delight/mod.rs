@@ -370,6 +370,9 @@ pub fn run_pipeline(a: &DelightArgs, log: &(dyn Fn(&str) + Sync)) -> Result<serd
         cancel: Some(util::interrupt_flag()),
         // under MPI: every pass's light paths split across the ranks (same bits)
         comm: crate::dist::comm(),
+        // a bar per stage on a terminal (rank 0's only under MPI)
+        progress: crate::dist::is_root()
+            .then(|| opal_inverse::delight::Progress::new(util::stage_progress())),
         ..Default::default()
     };
     // under MPI only rank 0 writes: the other ranks keep no checkpoint and no debug files
@@ -557,6 +560,15 @@ fn write_outputs(
             "mean_albedo_seen": m,
             "mean_albedo": o.mean_kd(),
             "clamped_texel_channels": o.clamped,
+            "superres": o.superres.map(|i| json!({
+                "reweightings": i.reweightings,
+                "cg_steps": i.cg_steps,
+                "residual_to_noise": i.residual_to_noise,
+                "relative_residual": i.relative_residual,
+                "converged": i.converged,
+                "photo_noise": i.photo_noise,
+                "prior_weight": i.lambda,
+            })),
             "texture": format!("albedo/{}.exr", o.id),
             "mesh": format!("meshes/{}.obj", o.id),
             "last_error_map": r.iterations.last().map(|it| format!("errors/iter_{:02}_{}.png", it.iteration, o.id)),
@@ -747,7 +759,7 @@ pub fn run(a: DelightArgs) -> Result<i32> {
     let (quiet, root) = (util::is_quiet(), crate::dist::is_root());
     let log = move |l: &str| {
         if !quiet || (root && l.starts_with("warning: ")) {
-            eprintln!("{l}")
+            util::suspend_progress(|| eprintln!("{l}"))
         }
     };
     util::install_interrupt_handler();

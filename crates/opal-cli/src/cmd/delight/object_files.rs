@@ -79,12 +79,30 @@ fn object_file_bytes(r: &DelightResult, j: usize, kind: usize) -> Result<Vec<u8>
 /// round `k` on rank `i`), each rank encodes its file and sends the bytes, and rank 0 writes
 /// them: the output work is split too, and at most one file per rank is in memory at a time.
 pub(super) fn write_object_files(r: &DelightResult, out: &Path) -> Result<Vec<Vec<u8>>> {
-    use rayon::prelude::*;
     let units: Vec<(usize, usize)> =
         (0..r.objects.len()).flat_map(|j| (0..object_file_kinds(r)).map(move |k| (j, k))).collect();
-    let mut pngs = vec![Vec::new(); r.objects.len()];
+    let pngs = vec![Vec::new(); r.objects.len()];
     let comm = crate::dist::comm_or_solo();
     let (rank, size) = (comm.rank(), comm.size());
+    // a bar over the files (hidden with --quiet or off a terminal)
+    let pb = util::progress(units.len() as u64, "outputs");
+    let pngs = write_units(r, out, &units, pngs, (rank, size), &*comm, &pb);
+    pb.finish_and_clear();
+    pngs
+}
+
+/// [`write_object_files`]'s work: the `units` (object, kind) encoded and written, `pb` advanced
+/// per file.
+fn write_units(
+    r: &DelightResult,
+    out: &Path,
+    units: &[(usize, usize)],
+    mut pngs: Vec<Vec<u8>>,
+    (rank, size): (usize, usize),
+    comm: &dyn opal::dist::Comm,
+    pb: &indicatif::ProgressBar,
+) -> Result<Vec<Vec<u8>>> {
+    use rayon::prelude::*;
     if size == 1 {
         let kept: Vec<Option<Vec<u8>>> = units
             .par_iter()
@@ -93,9 +111,11 @@ pub(super) fn write_object_files(r: &DelightResult, out: &Path) -> Result<Vec<Ve
                 if k == ALBEDO_PNG {
                     let b = object_file_bytes(r, j, k)?;
                     util::write_bytes_atomic(&path, &b)?;
+                    pb.inc(1);
                     return Ok(Some(b));
                 }
                 util::write_atomic(&path, |f| encode_object_file(r, j, k, std::io::BufWriter::new(f)))?;
+                pb.inc(1);
                 Ok(None)
             })
             .collect::<Result<_>>()?;
@@ -112,6 +132,7 @@ pub(super) fn write_object_files(r: &DelightResult, out: &Path) -> Result<Vec<Ve
             None => Vec::new(),
         };
         let all = comm.all_gather_bytes(&mine);
+        pb.inc(round.len() as u64);
         if rank == 0 {
             for (&(j, k), b) in round.iter().zip(all) {
                 util::write_bytes_atomic(&out.join(object_file_name(r, j, k)), &b)?;

@@ -131,17 +131,22 @@ pub(super) fn rerender_and_judge(
     let shapes: Vec<usize> = r.objects.iter().map(|o| o.shape).collect();
     // under MPI the rows of each re-render are split across the ranks (the same image)
     let comm = crate::dist::comm_or_solo();
+    // rows of this rank's share of every view's first render (the extra samples add theirs)
+    let share = |h: usize| h.div_ceil(comm.size()) as u64;
+    let pb = crate::util::progress(views.iter().map(|v| share(v.image.height)).sum(), "re-renders");
+    let row = || pb.inc(1);
     for (vi, v) in views.iter().enumerate() {
         let (w, h) = (v.image.width, v.image.height);
         let masks: Vec<Vec<bool>> =
             object_masks(&scene, v, &shapes).iter().map(|m| erode_mask(m, w, h)).collect();
-        let mut ro = render_split(&rscene, vi, &ps, &|| {}, None, &*comm)?;
+        let mut ro = render_split(&rscene, vi, &ps, &row, None, &*comm)?;
         // more samples where the noisiest judged region is above the target
         let (pilot_noise, spp) = (region_noise(v, &ro, &masks), a.rerender_spp);
         let want = rerender_spp_for(spp, pilot_noise, a.rerender_noise);
         if want > spp {
             let more = PathSettings { spp: want - spp, seed: ps.seed ^ 0x5EED_0001, ..ps };
-            let r2 = render_split(&rscene, vi, &more, &|| {}, None, &*comm)?;
+            pb.inc_length(share(h));
+            let r2 = render_split(&rscene, vi, &more, &row, None, &*comm)?;
             combine_renders(&mut ro, spp, &r2, want - spp);
         }
         // previews of the photo and the re-render at one exposure, and their error map
@@ -182,6 +187,7 @@ pub(super) fn rerender_and_judge(
             }));
         }
     }
+    pb.finish_and_clear();
     Ok(Judged { regions, max_region_err, rerenders, contact })
 }
 

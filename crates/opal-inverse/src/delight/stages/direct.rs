@@ -11,6 +11,7 @@
 
 use crate::delight::atlas::NO_TRI;
 use crate::delight::direct::direct_irradiance_many;
+use crate::delight::progress::Stage;
 use crate::delight::{DelightSettings, ObjectResult};
 use opal::scene::Scene;
 
@@ -23,6 +24,8 @@ pub(in crate::delight) fn direct_stage(
 ) -> [f32; 3] {
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
+    let texels: usize = objects.iter().map(|o| o.atlas.width * o.atlas.height).sum();
+    let bar = Stage::start(s.progress.as_ref(), "direct", texels as u64);
     // all objects in one split (object j seeded with its own stream)
     let atlases: Vec<&crate::delight::atlas::Atlas> = objects.iter().map(|o| &o.atlas).collect();
     let streams: Vec<u64> = (0..objects.len()).map(|j| 0xED00 + j as u64).collect();
@@ -31,6 +34,8 @@ pub(in crate::delight) fn direct_stage(
     for (o, ed) in objects.iter_mut().zip(maps) {
         o.ed = ed;
     }
+    bar.step(texels as u64);
+    bar.finish();
     scene_average(objects)
 }
 

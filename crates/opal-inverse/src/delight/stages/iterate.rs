@@ -14,6 +14,7 @@ use super::Inputs;
 use crate::delight::albedo::{fill_unseen, finish_luminance, quartiles, update_kd};
 use crate::delight::atlas::NO_TRI;
 use crate::delight::checkpoint;
+use crate::delight::progress::Stage;
 use crate::delight::timing::{StageClock, Timings};
 use crate::delight::views::{PureBuffer, View};
 use crate::delight::{
@@ -174,8 +175,13 @@ pub(in crate::delight) fn iterate(
         // finished iteration (already checkpointed) is what is kept. Under MPI the paths are
         // split across the ranks (same maps, bit for bit).
         let comm0 = comm.comm_seconds();
-        let Some(out) = light_tracer::trace_split(&rscene, &targets, &lt, &|| {}, s.cancel.as_deref(), comm)
-        else {
+        // progress in batches: this process's share of the pass's batches
+        let batches = paths.div_ceil(lt.batch_size).div_ceil(comm.size() as u64);
+        let bar = Stage::start(s.progress.as_ref(), format!("light tracing {k}"), batches);
+        let traced =
+            light_tracer::trace_split(&rscene, &targets, &lt, &|| bar.step(1), s.cancel.as_deref(), comm);
+        bar.finish();
+        let Some(out) = traced else {
             saver.wait()?;
             return Err(Error::Interrupted { kept: kept(s, k - 1) });
         };
@@ -194,12 +200,16 @@ pub(in crate::delight) fn iterate(
         let (mut gmax, mut gsum, mut gcount) = (0f64, 0f64, 0usize);
         // objects in parallel (smoothing, error statistics, update and inpainting of each); under
         // several processes each object on one rank, its results then shared
+        let bar = Stage::start(s.progress.as_ref(), format!("post {k}"), objects.len() as u64);
         let pass = |_: usize, o: &mut ObjectResult| {
             let m = out.maps[o.shape].as_ref().expect("target");
-            object_pass(o, m, k, s, log)
+            let r = object_pass(o, m, k, s, log);
+            bar.step(1);
+            r
         };
         let post: Vec<ObjectPass> =
             split::per_object(comm, objects, costs, pass, ObjectPass::put, ObjectPass::get);
+        drop(bar);
         let mut texel_noise = Vec::new();
         let mut all_residuals = Vec::new();
         for p in post {
@@ -472,6 +482,8 @@ fn superres_pass(
     } else {
         vec![0; objects.len()]
     };
+    let mine = owner.iter().filter(|&&r| r == comm.rank()).count();
+    let bar = Stage::start(s.progress.as_ref(), "superres", mine as u64);
     let msgs: Vec<Option<String>> = objects
         .par_iter_mut()
         .enumerate()
@@ -479,6 +491,7 @@ fn superres_pass(
             if owner[j] != comm.rank() {
                 return None;
             }
+            let _done = StepOnDrop(&bar);
             let to = std::time::Instant::now();
             let reach = reached_texels(&o.observed, &o.ed, &o.ei);
             let ei = smooth_in_charts_masked(&o.ei, &o.atlas, (o.atlas.width / 16).max(1), &reach);
@@ -509,19 +522,25 @@ fn superres_pass(
             };
             o.l = ls;
             o.observed = os;
+            o.superres = Some(info);
             finish_luminance(o);
             o.clamped = update_kd(o);
             let noise =
                 info.photo_noise.map_or(String::new(), |x| format!(", photo noise {:.1} %", 100.0 * x));
+            let res = info.residual_to_noise.map_or(String::new(), |r| format!(", residual {r:.3} of the noise"));
             Some(format!(
-                "super-resolved luminance {}: {:.1} % of texels seen (prior weight {:.2e}{noise}; {:.1} s)",
+                "super-resolved luminance {}: {:.1} % of texels seen (prior weight {:.2e}{noise}; {} reweightings, {} CG steps{res}{}; {:.1} s)",
                 o.id,
                 100.0 * o.seen_fraction,
                 info.lambda,
+                info.reweightings,
+                info.cg_steps,
+                if info.converged { "" } else { ", step limit" },
                 to.elapsed().as_secs_f64()
             ))
         })
         .collect();
+    bar.finish();
     let msgs = if comm.size() > 1 { exchange_superres(comm, objects, &owner, msgs) } else { msgs };
     msgs.iter().flatten().for_each(|m| log(m));
 }
@@ -548,6 +567,7 @@ fn exchange_superres(
         }
         p.f64(o.seen_fraction);
         p.u64(o.clamped as u64);
+        pack_info(&mut p, o.superres.unwrap_or_default());
     }
     let all = comm.all_gather_bytes(&p.0);
     let mut readers: Vec<opal::dist::Unpacker> = all.iter().map(|b| opal::dist::Unpacker(b)).collect();
@@ -567,7 +587,42 @@ fn exchange_superres(
         }
         o.seen_fraction = u.f64();
         o.clamped = u.u64() as usize;
+        o.superres = Some(unpack_info(u));
     }
     assert!(readers.iter().all(|r| r.is_empty()), "a rank sent the maps of another object");
     out
+}
+
+/// [`superres::SrInfo`] for [`exchange_superres`] (`None` as NaN).
+fn pack_info(p: &mut opal::dist::Packer, i: superres::SrInfo) {
+    p.f64(i.photo_noise.unwrap_or(f64::NAN));
+    p.f64(i.lambda as f64);
+    p.u64(i.reweightings as u64);
+    p.u64(i.cg_steps as u64);
+    p.f64(i.residual_to_noise.unwrap_or(f64::NAN));
+    p.f64(i.relative_residual);
+    p.u8(i.converged as u8);
+}
+
+/// The inverse of [`pack_info`].
+fn unpack_info(u: &mut opal::dist::Unpacker) -> superres::SrInfo {
+    let some = |x: f64| (!x.is_nan()).then_some(x);
+    superres::SrInfo {
+        photo_noise: some(u.f64()),
+        lambda: u.f64() as f32,
+        reweightings: u.u64() as usize,
+        cg_steps: u.u64() as usize,
+        residual_to_noise: some(u.f64()),
+        relative_residual: u.f64(),
+        converged: u.u8() != 0,
+    }
+}
+
+/// Steps a progress stage by one when dropped (an object's work done, whichever way it returned).
+struct StepOnDrop<'a, 'b>(&'a Stage<'b>);
+
+impl Drop for StepOnDrop<'_, '_> {
+    fn drop(&mut self) {
+        self.0.step(1);
+    }
 }

@@ -9,6 +9,7 @@
 use super::Inputs;
 use crate::delight::albedo::finish_luminance;
 use crate::delight::atlas::Atlas;
+use crate::delight::progress::Stage;
 use crate::delight::timing::{StageClock, Timings};
 use crate::delight::views::{PureBuffer, View};
 use crate::delight::{
@@ -94,6 +95,7 @@ pub(in crate::delight) fn luminance_maps(
         .filter(|s| s.emission.is_some())
         .map(|s| bbox(s.mesh.positions.iter().copied()))
         .collect();
+    let bar = Stage::start(s.progress.as_ref(), "luminance", objects.len() as u64);
     let one = |_: usize, o: &mut ObjectResult| -> (usize, Option<Luminance>) {
         let (mut l, mut obs) = luminance_map(scene, o.shape as u32, &o.atlas, views, pure);
         // super-resolution here only when no light-tracing pass gives the shading (see
@@ -149,7 +151,19 @@ pub(in crate::delight) fn luminance_maps(
         let seen_fraction = u.f64();
         (left, Some(Luminance { l, observed, near_emitter, seen_fraction }))
     };
-    let done = split::per_object(comm, objects, costs, one, put, get);
+    let done = split::per_object(
+        comm,
+        objects,
+        costs,
+        |j, o| {
+            let r = one(j, o);
+            bar.step(1);
+            r
+        },
+        put,
+        get,
+    );
+    bar.finish();
     for (o, (left, m)) in objects.iter_mut().zip(done) {
         if let Some(m) = m {
             o.l = m.l;

@@ -7,6 +7,7 @@
 
 use super::Inputs;
 use crate::delight::footprint::{self, ResolutionChoice, ResolutionRule};
+use crate::delight::progress::Stage;
 use crate::delight::views::View;
 use crate::delight::{ObjectResult, atlas};
 use opal::camera::Camera;
@@ -155,13 +156,19 @@ pub(in crate::delight) fn unwrap_objects(
     let cams: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
+    let bar = Stage::start(s.progress.as_ref(), "unwrap", selected.len() as u64);
     let built = opal::dist::map_units(
         comm,
         selected.len(),
-        |i| unwrap_one(inp, selected[i], &cams),
+        |i| {
+            let r = unwrap_one(inp, selected[i], &cams);
+            bar.step(1);
+            r
+        },
         wire::put,
         wire::get,
     );
+    bar.finish();
     let mut objects = Vec::new();
     let mut skipped = Vec::new();
     for (&k, built) in selected.iter().zip(built) {
@@ -195,6 +202,7 @@ pub(in crate::delight) fn unwrap_objects(
                     near_emitter: false,
                     seen_fraction: 0.0,
                     clamped: 0,
+                    superres: None,
                 });
             }
             Err(e) => {

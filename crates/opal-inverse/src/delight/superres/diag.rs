@@ -1,11 +1,12 @@
 //! Error-analysis hook of the super-resolution ([`SrDiagnostics`], off by default): the
 //! residual of the observation operator applied to a given radiance map (e.g. the true one)
-//! against each photo, and synthetic photos made from it (see [`super::superres`]'s module
+//! against each photo, and synthetic photos made from it (see [`super`]'s module
 //! documentation). Used by `bench/scripts/delight_psnr_budget.py`.
 
-use super::atlas::Atlas;
-use super::superres::{Row, SrDiagnostics};
-use super::views::View;
+use super::operator::Row;
+use super::settings::SrDiagnostics;
+use crate::delight::atlas::Atlas;
+use crate::delight::views::View;
 
 /// Diagnostic ([`SrDiagnostics::truth`], [`SrDiagnostics::residual_dir`]): residual of the
 /// observation operator applied to a given radiance map against the photo, per view, normalised
