@@ -567,7 +567,10 @@ fn exchange_superres(
         }
         p.f64(o.seen_fraction);
         p.u64(o.clamped as u64);
-        pack_info(&mut p, o.superres.unwrap_or_default());
+        p.u8(o.superres.is_some() as u8);
+        if let Some(info) = o.superres {
+            pack_info(&mut p, info);
+        }
     }
     let all = comm.all_gather_bytes(&p.0);
     let mut readers: Vec<opal::dist::Unpacker> = all.iter().map(|b| opal::dist::Unpacker(b)).collect();
@@ -587,7 +590,7 @@ fn exchange_superres(
         }
         o.seen_fraction = u.f64();
         o.clamped = u.u64() as usize;
-        o.superres = Some(unpack_info(u));
+        o.superres = (u.u8() != 0).then(|| unpack_info(u));
     }
     assert!(readers.iter().all(|r| r.is_empty()), "a rank sent the maps of another object");
     out
