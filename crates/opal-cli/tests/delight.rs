@@ -152,6 +152,7 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "mean_albedo_seen",
         "mean_albedo",
         "clamped_texel_channels",
+        "unseen_light",
         "texture",
         "mesh",
         "last_error_map",

@@ -106,6 +106,9 @@ pub struct DelightSettings {
     /// one-process result bit for bit, so all ranks run the same de-lighting. `None`: this
     /// process alone. Unwrapping, view gains and luminance maps run in full on every rank.
     pub comm: Option<std::sync::Arc<dyn opal::dist::Comm>>,
+    /// Light paths of each of the three passes of the unseen-light analysis
+    /// ([`super::unseen`]) as a fraction of an iteration's paths; 0 skips it. Default 0.25.
+    pub unseen_light_paths: f64,
 }
 
 /// Debug and error-analysis outputs of [`delight`](super::delight); [`Default`] = all off (no
@@ -150,6 +153,7 @@ impl Default for DelightSettings {
             resume: false,
             cancel: None,
             comm: None,
+            unseen_light_paths: 0.25,
         }
     }
 }
