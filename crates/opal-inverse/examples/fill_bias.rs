@@ -96,7 +96,11 @@ fn main() {
                     (-r..=r).any(|dy| {
                         (-r..=r).any(|dx| {
                             let (xx, yy) = (x + dx, y + dy);
-                            xx >= 0 && yy >= 0 && xx < w as i64 && yy < h as i64 && hole[yy as usize * w + xx as usize]
+                            xx >= 0
+                                && yy >= 0
+                                && xx < w as i64
+                                && yy < h as i64
+                                && hole[yy as usize * w + xx as usize]
                         })
                     })
                 })

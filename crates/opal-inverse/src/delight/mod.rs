@@ -122,7 +122,11 @@ pub fn recovered_desc(desc: &SceneDesc, objects: &[ObjectResult]) -> SceneDesc {
 
 /// [`recovered_desc`] with the albedo maps `kd` (one per object, on its atlas) instead of the
 /// objects' own.
-pub fn recovered_desc_with<K: AsRef<[[f32; 3]]>>(desc: &SceneDesc, objects: &[ObjectResult], kd: &[K]) -> SceneDesc {
+pub fn recovered_desc_with<K: AsRef<[[f32; 3]]>>(
+    desc: &SceneDesc,
+    objects: &[ObjectResult],
+    kd: &[K],
+) -> SceneDesc {
     let mut d = desc.clone();
     for (o, kd) in objects.iter().zip(kd) {
         let s = &mut d.shapes[o.shape];
