@@ -118,7 +118,7 @@ fn fill_uncertainties(objects: &[ObjectResult]) -> (Vec<[f64; 3]>, Vec<[f64; 3]>
     let seen: Vec<(f64, [f64; 3])> = objects
         .iter()
         .filter(|o| o.seen_fraction > 0.0)
-        .map(|o| (o.atlas.mesh.area() as f64, o.mean_kd_observed()))
+        .map(|o| (o.atlas.mesh.area(), o.mean_kd_observed()))
         .collect();
     let wsum: f64 = seen.iter().map(|s| s.0).sum();
     let between: [f64; 3] = std::array::from_fn(|c| {
