@@ -11,8 +11,8 @@ its lowest point 1 cm below the floor (the object stands in the floor: a contact
 rotated cuboid standing on the floor (a box on a textured floor: straight contact edges); two
 ceiling area lights of different size and colour. Eight 256² pinhole cameras around the
 object at different heights and distances, one of them looking down onto the floor behind the
-box (`--placement original`: the first data set's views, which leave that floor unseen). Every surface is Lambertian (Mitsuba `diffuse`),
-every mesh uses face normals.
+box (`--placement original`: the first data set's views, which leave that floor unseen).
+Every surface is Lambertian (Mitsuba `diffuse`), every mesh uses face normals.
 
 The scan's albedo is a procedural colour field of the undisplaced direction `d` (smooth colour
 patches from 3D value noise, soft-edged painted bands and spots, fine stone-like modulation),
