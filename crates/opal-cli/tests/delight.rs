@@ -157,6 +157,7 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "mean_albedo",
         "clamped_texel_channels",
         "superres",
+        "unseen_light",
         "texture",
         "mesh",
         "last_error_map",

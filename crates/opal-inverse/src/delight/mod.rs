@@ -34,7 +34,9 @@
 //!    quartile (Tukey 1.5·IQR) outlier rejection per object gives the max/mean error of the
 //!    iteration; `Ei` is updated by the fixed-point rule `Ei ← Ei_r` (default) or the paper's
 //!    gradient step `Ei ← max(0, Ei + α_k Kd/π e)`, `α_k = α₀/(1+k)`; `Kd` is recomputed with
-//!    the [0, 1] correction; stop when the max error is below the tolerance or at the limit.
+//!    the [0, 1] correction; stop when the max error is below the tolerance or at the limit;
+//! 7. what the data cannot determine ([`unseen`]): per object the part of its light that
+//!    arrived via texels no view observed, and how far their fill can move its albedo.
 //!
 //! Files: settings in `settings.rs`, results in `result.rs`; [`delight`] in `pipeline.rs` runs
 //! the named stages of `stages/` in order: `unwrap.rs` (selection, atlases), `direct.rs` (step
@@ -77,6 +79,7 @@ mod split;
 mod stages;
 pub mod superres;
 mod timing;
+pub mod unseen;
 pub mod views;
 pub mod working_size;
 
@@ -90,6 +93,7 @@ pub use result::{DelightResult, IterationStats, ObjectResult};
 pub use settings::{DebugSettings, DelightSettings, LightPaths, UpdateRule};
 pub use smooth::{reached_texels, smooth_in_charts, smooth_in_charts_masked};
 pub use timing::{StageClock, cpu_seconds, rss_mb};
+pub use unseen::UnseenLight;
 
 use opal::image::Image;
 use opal::scene::desc::{BitmapDesc, BsdfDesc, FilterType, SceneDesc, TextureDesc, WrapMode};
@@ -113,13 +117,24 @@ pub fn luminance(c: [f32; 3]) -> f32 {
 /// The scene description with every recovered object using its atlas mesh and a diffuse BSDF
 /// with its albedo texture (bilinear, clamp).
 pub fn recovered_desc(desc: &SceneDesc, objects: &[ObjectResult]) -> SceneDesc {
+    let kd: Vec<&[[f32; 3]]> = objects.iter().map(|o| o.kd.as_slice()).collect();
+    recovered_desc_with(desc, objects, &kd)
+}
+
+/// [`recovered_desc`] with the albedo maps `kd` (one per object, on its atlas) instead of the
+/// objects' own.
+pub fn recovered_desc_with<K: AsRef<[[f32; 3]]>>(
+    desc: &SceneDesc,
+    objects: &[ObjectResult],
+    kd: &[K],
+) -> SceneDesc {
     let mut d = desc.clone();
-    for o in objects {
+    for (o, kd) in objects.iter().zip(kd) {
         let s = &mut d.shapes[o.shape];
         s.mesh = o.atlas.mesh.clone();
         s.bsdf = BsdfDesc::Diffuse {
             reflectance: TextureDesc::Bitmap(BitmapDesc {
-                image: Arc::new(o.kd_image()),
+                image: Arc::new(to_image(kd.as_ref(), o.atlas.width, o.atlas.height)),
                 filter: FilterType::Bilinear,
                 wrap: WrapMode::Clamp,
                 path: format!("{}.exr", o.id).into(),

@@ -138,12 +138,14 @@ pub fn delight(
     // unseen objects: scene-average albedo of the seen ones
     fill_unseen(&mut objects);
     // 5. iterations
-    let iterated =
+    let mut iterated =
         iterate::iterate(&inp, &mut objects, views, &pure, &mut warnings, &mut timings, &mut costs)?;
-    // 6. outputs
+    // 6. what the data cannot determine: the light via texels no view observed
+    let unseen_light = unseen_stage(&inp, &objects, &mut iterated, &mut warnings, &mut timings, comm)?;
+    // 7. outputs
     debug_dump(&objects, "final", s.debug.dump_dir.as_deref());
     Ok(assemble(
-        Finished { objects, skipped, not_recovered, iterated, view_gains, poses, warnings },
+        Finished { objects, skipped, not_recovered, iterated, view_gains, poses, warnings, unseen_light },
         timings,
         t_all,
     ))
@@ -165,6 +167,48 @@ fn held_per_view(views: &[View], pure: &[PureBuffer], own_copy: bool) -> String 
         mb(pb),
         pb as f64 / px.max(1) as f64
     )
+}
+
+/// The unseen-light analysis ([`super::unseen`]; skipped when `unseen_light_paths` is 0): one
+/// log line per object, warnings for the objects it can move, stage clock `unseen_light`.
+fn unseen_stage(
+    inp: &Inputs,
+    objects: &[super::ObjectResult],
+    iterated: &mut iterate::Iterated,
+    warnings: &mut Vec<String>,
+    timings: &mut Timings,
+    comm: &dyn opal::dist::Comm,
+) -> Result<Vec<super::UnseenLight>> {
+    let (s, log) = (inp.s, inp.log);
+    if s.unseen_light_paths <= 0.0 || iterated.iterations.is_empty() {
+        return Ok(Vec::new());
+    }
+    let t0 = StageClock::start();
+    let texels: usize = objects.iter().map(|o| o.atlas.width * o.atlas.height).sum();
+    let paths = ((s.light_paths.paths(texels) as f64 * s.unseen_light_paths) as u64).max(1000);
+    // a seed no iteration uses
+    let seed = s.seed.wrapping_add(0x756e_7365_656e);
+    let cancel = s.cancel.as_deref();
+    let Some(u) = super::unseen::unseen_light(inp.desc, objects, paths, seed, cancel, comm)? else {
+        return Err(Error::Interrupted { kept: iterate::kept(s, iterated.iterations.len()) });
+    };
+    iterated.light_paths += 3 * paths;
+    for x in &u {
+        let p = |v: [f64; 3]| v.map(|x| format!("{:.2}", 100.0 * x)).join(" / ");
+        log(&format!(
+            "unseen light {}: {} unseen texels; share of its light via unseen texels {} %, albedo shift {} % \
+             (fill uncertainty {} %, noise {} %)",
+            x.id,
+            x.unseen_texels,
+            p(x.share),
+            p(x.albedo_shift),
+            p(x.fill_uncertainty),
+            p(x.albedo_noise)
+        ));
+    }
+    warnings.extend(super::unseen::unseen_warnings(&u));
+    timings.push("unseen_light", t0.elapsed());
+    Ok(u)
 }
 
 /// `Err(Interrupted)` once `s.cancel` is set (a stage boundary before the iterations: nothing

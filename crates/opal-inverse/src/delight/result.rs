@@ -144,6 +144,10 @@ pub struct DelightResult {
     /// Per stage of `timings`: the process's resident memory at the stage's end and its peak so
     /// far, MB ([`rss_mb`](super::rss_mb); NaN where `/proc/self/status` is not available).
     pub memory_mb: Vec<(String, [f64; 2])>,
-    /// Light paths traced in total.
+    /// Light paths traced in total (the unseen-light analysis included).
     pub light_paths: u64,
+    /// Per recovered object (same order as `objects`): the part of its light that arrived via
+    /// texels no view observed and how far their fill can move its albedo
+    /// ([`super::unseen`]); empty when the analysis was skipped.
+    pub unseen_light: Vec<super::UnseenLight>,
 }

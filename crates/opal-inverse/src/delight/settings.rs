@@ -109,6 +109,9 @@ pub struct DelightSettings {
     /// Called with `(stage, done, total)` as the long stages advance ([`super::progress`]);
     /// `None`: no reports.
     pub progress: Option<super::Progress>,
+    /// Light paths of each of the three passes of the unseen-light analysis
+    /// ([`super::unseen`]) as a fraction of an iteration's paths; 0 skips it. Default 0.25.
+    pub unseen_light_paths: f64,
 }
 
 /// Debug and error-analysis outputs of [`delight`](super::delight); [`Default`] = all off (no
@@ -154,6 +157,7 @@ impl Default for DelightSettings {
             cancel: None,
             comm: None,
             progress: None,
+            unseen_light_paths: 0.25,
         }
     }
 }

@@ -541,8 +541,18 @@ fn write_outputs(
     // albedo PNGs (8-bit sRGB) are encoded once: albedo/<obj>.png and the glTF textures
     let albedo_png = object_files::write_object_files(r, out)?;
     let mut objs = Vec::new();
-    for o in &r.objects {
+    for (j, o) in r.objects.iter().enumerate() {
         let m = o.mean_kd_observed();
+        let finite = |v: [f64; 3]| v.map(|x| x.is_finite().then_some(x));
+        let unseen = r.unseen_light.get(j).map(|u| {
+            json!({
+                "unseen_texels": u.unseen_texels,
+                "share": u.share,
+                "fill_uncertainty": finite(u.fill_uncertainty),
+                "albedo_shift": u.albedo_shift,
+                "albedo_noise": finite(u.albedo_noise),
+            })
+        });
         objs.push(json!({
             "id": o.id,
             "resolution": [o.atlas.width, o.atlas.height],
@@ -569,6 +579,7 @@ fn write_outputs(
                 "photo_noise": i.photo_noise,
                 "prior_weight": i.lambda,
             })),
+            "unseen_light": unseen,
             "texture": format!("albedo/{}.exr", o.id),
             "mesh": format!("meshes/{}.obj", o.id),
             "last_error_map": r.iterations.last().map(|it| format!("errors/iter_{:02}_{}.png", it.iteration, o.id)),

@@ -41,6 +41,8 @@ pub(in crate::delight) struct Finished {
     pub poses: Option<PoseReport>,
     /// Warnings.
     pub warnings: Vec<String>,
+    /// The unseen-light analysis per object (empty when skipped).
+    pub unseen_light: Vec<crate::delight::UnseenLight>,
 }
 
 /// The result of the run started at `t_all` (stage clock `total` added).
@@ -61,5 +63,6 @@ pub(in crate::delight) fn assemble(f: Finished, mut timings: Timings, t_all: Sta
         cpu_timings,
         memory_mb,
         light_paths,
+        unseen_light: f.unseen_light,
     }
 }
