@@ -274,7 +274,7 @@ impl Detectors {
 
     /// Calls `f(i)` for every detector `i` of `side` that counts a photon leaving point `p`
     /// (plate frame, mm; ignored in the far field) in direction `d`.
-    #[inline(always)]
+    #[inline]
     pub fn for_each_hit(&self, side: Side, d: Vec3, p: Vec3, mut f: impl FnMut(usize)) {
         let Some(q) = self.seen_direction(d, p) else { return };
         let nf = self.n as f32;

@@ -36,7 +36,7 @@
 //!
 //! Two photon loops: `fast` (infinite plate, polished faces, single-scattering GGX or
 //! Beckmann faces and dotted faces of these: f32 fast math, NDF resolved once, see
-//! `gonio/fast/`) and the general
+//! `gonio/fast.rs`) and the general
 //! `trace_photon` (finite plates, multiple scattering, height-correlated G, numerical NDFs).
 //! Both follow the same random-number contract.
 //!
