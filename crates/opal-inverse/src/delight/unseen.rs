@@ -391,6 +391,7 @@ mod tests {
                     near_emitter: false,
                     seen_fraction: seen,
                     clamped: 0,
+                    superres: None,
                     atlas: a,
                 }
             })
