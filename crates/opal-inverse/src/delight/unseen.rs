@@ -35,7 +35,7 @@
 
 use super::atlas::NO_TRI;
 use super::{ObjectResult, inpaint, recovered_desc_with};
-use opal::integrator::light_tracer::{self, IrradianceTarget, LightTraceOutput, LightTraceSettings};
+use opal::integrator::light_tracer::{self, LightTraceOutput, LightTraceSettings};
 use opal::scene::Scene;
 use opal::scene::desc::SceneDesc;
 
@@ -167,15 +167,7 @@ pub fn unseen_light(
     comm: &dyn opal::dist::Comm,
 ) -> opal::error::Result<Option<Vec<UnseenLight>>> {
     let (fill, noise) = fill_uncertainties(objects);
-    let targets: Vec<Option<IrradianceTarget>> = (0..desc.shapes.len())
-        .map(|k| {
-            objects.iter().find(|o| o.shape == k).map(|o| IrradianceTarget {
-                width: o.atlas.width,
-                height: o.atlas.height,
-                texel_area: o.atlas.texel_area.clone(),
-            })
-        })
-        .collect();
+    let targets = crate::delight::stages::iterate::irradiance_targets(desc.shapes.len(), objects);
     let lt = LightTraceSettings {
         paths,
         batch_size: paths.div_ceil(16 * comm.size() as u64).clamp(1 << 12, 1 << 18),
@@ -356,9 +348,9 @@ mod tests {
             desc.shapes[k].mesh = a.mesh.clone();
         }
         let scene = Scene::build(&desc).unwrap();
-        let targets: Vec<Option<IrradianceTarget>> = (0..desc.shapes.len())
+        let targets: Vec<Option<light_tracer::IrradianceTarget>> = (0..desc.shapes.len())
             .map(|k| {
-                atlases.get(k).map(|a| IrradianceTarget {
+                atlases.get(k).map(|a| light_tracer::IrradianceTarget {
                     width: a.width,
                     height: a.height,
                     texel_area: a.texel_area.clone(),

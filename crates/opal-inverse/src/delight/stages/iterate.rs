@@ -97,15 +97,7 @@ pub(in crate::delight) fn iterate(
     costs: &mut Vec<f64>,
 ) -> Result<Iterated> {
     let (desc, s, log) = (inp.desc, inp.s, inp.log);
-    let targets: Vec<Option<IrradianceTarget>> = (0..desc.shapes.len())
-        .map(|k| {
-            objects.iter().find(|o| o.shape == k).map(|o| IrradianceTarget {
-                width: o.atlas.width,
-                height: o.atlas.height,
-                texel_area: o.atlas.texel_area.clone(),
-            })
-        })
-        .collect();
+    let targets = irradiance_targets(desc.shapes.len(), objects);
     let texels: usize = objects.iter().map(|o| o.atlas.width * o.atlas.height).sum();
     let paths = s.light_paths.paths(texels);
     if let LightPaths::TargetNoise(t) = s.light_paths {
@@ -628,4 +620,21 @@ impl Drop for StepOnDrop<'_, '_> {
     fn drop(&mut self) {
         self.0.step(1);
     }
+}
+
+/// One light-tracing target per shape of the scene: the texel grid of the object on it, `None`
+/// for shapes without one.
+pub(in crate::delight) fn irradiance_targets(
+    shapes: usize,
+    objects: &[ObjectResult],
+) -> Vec<Option<IrradianceTarget>> {
+    (0..shapes)
+        .map(|k| {
+            objects.iter().find(|o| o.shape == k).map(|o| IrradianceTarget {
+                width: o.atlas.width,
+                height: o.atlas.height,
+                texel_area: o.atlas.texel_area.clone(),
+            })
+        })
+        .collect()
 }
