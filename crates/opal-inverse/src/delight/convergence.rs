@@ -149,8 +149,7 @@ pub const REGIONS_PER_OBJECT: usize = 85;
 /// region ([`regions`]: tiles and their unions up to the whole object) with at least
 /// [`MIN_TILE_TEXELS`] texels.
 pub fn assess(tiles: &[TileSums], previous: f64) -> Change {
-    let all: Vec<TileSums> =
-        tiles.chunks(TILES_PER_SIDE * TILES_PER_SIDE).flat_map(regions).collect();
+    let all: Vec<TileSums> = tiles.chunks(TILES_PER_SIDE * TILES_PER_SIDE).flat_map(regions).collect();
     let used: Vec<&TileSums> = all.iter().filter(|t| t.n >= MIN_TILE_TEXELS && t.w > 0.0).collect();
     let m = used.len();
     let z = (2.0 * (m.max(1) as f64 / FAMILY_ALPHA).ln()).sqrt();
@@ -181,7 +180,13 @@ mod tests {
     /// variance `previous` × that; coverage weights in [0.25, 1]. The noise variance `v` of each
     /// texel is the square of the pass's noise (its residual against the exact mean, as the pass
     /// has it: the estimate's noise is not in the pass's map).
-    fn pass(seed: u64, objects: usize, n: usize, previous: f64, shift: &dyn Fn(usize, usize) -> f64) -> Vec<TileSums> {
+    fn pass(
+        seed: u64,
+        objects: usize,
+        n: usize,
+        previous: f64,
+        shift: &dyn Fn(usize, usize) -> f64,
+    ) -> Vec<TileSums> {
         let mut rng = Rng::new(seed, 0, 0);
         let per = TILES_PER_SIDE * TILES_PER_SIDE;
         let mut tiles = vec![TileSums::default(); objects * per];
@@ -228,7 +233,8 @@ mod tests {
             let c = assess(&tile, p);
             assert!(c.beyond_noise > 0.01, "seed {seed}: {c:?}");
             assert!((c.max_change - 0.04).abs() < 0.015, "seed {seed}: {c:?}");
-            let quadrant = pass(seed, 4, 500, p, &|o, j| if o == 1 && j % 8 < 4 && j / 8 < 4 { 0.02 } else { 0.0 });
+            let quadrant =
+                pass(seed, 4, 500, p, &|o, j| if o == 1 && j % 8 < 4 && j / 8 < 4 { 0.02 } else { 0.0 });
             assert!(assess(&quadrant, p).beyond_noise > 0.01, "seed {seed}");
             let object = pass(seed, 4, 500, p, &|o, _| if o == 3 { 0.015 } else { 0.0 });
             assert!(assess(&object, p).beyond_noise > 0.01, "seed {seed}");

@@ -125,11 +125,14 @@ pub const TRIAL_RESOLUTION: usize = 512;
 fn packed_resolution(mesh: &TriangleMesh, samples: &[FootprintSample], keep_uvs: bool) -> Option<f64> {
     let fill = || footprint::camera_resolution(samples, mesh.area(), None, usize::MAX).1;
     match build_atlas(mesh, TRIAL_RESOLUTION, keep_uvs) {
-        Ok(a) if a.mesh.triangle_count() == mesh.triangle_count() => {
-            footprint::camera_resolution(samples, mesh.area(), Some((&a.texel_area, TRIAL_RESOLUTION)), usize::MAX)
-                .1
-                .or_else(fill)
-        }
+        Ok(a) if a.mesh.triangle_count() == mesh.triangle_count() => footprint::camera_resolution(
+            samples,
+            mesh.area(),
+            Some((&a.texel_area, TRIAL_RESOLUTION)),
+            usize::MAX,
+        )
+        .1
+        .or_else(fill),
         _ => fill(),
     }
 }

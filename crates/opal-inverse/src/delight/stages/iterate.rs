@@ -16,6 +16,7 @@ use super::Inputs;
 use crate::delight::albedo::{fill_unseen, finish_luminance, quartiles, update_kd};
 use crate::delight::atlas::NO_TRI;
 use crate::delight::checkpoint;
+use crate::delight::convergence::TileSums;
 use crate::delight::progress::Stage;
 use crate::delight::timing::{StageClock, Timings};
 use crate::delight::views::{PureBuffer, View};
@@ -23,7 +24,6 @@ use crate::delight::{
     DelightSettings, IterationStats, LightPaths, ObjectResult, UpdateRule, convergence, luminance, noise,
     reached_texels, recovered_desc, smooth_in_charts_masked, split, superres,
 };
-use crate::delight::convergence::TileSums;
 use opal::error::{Error, Result};
 use opal::integrator::light_tracer::{self, IrradianceMaps, IrradianceTarget, LightTraceSettings};
 use opal::math::PI;
