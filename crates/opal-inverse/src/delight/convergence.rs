@@ -38,10 +38,9 @@
 //!   albedo: `Kd = πL/(Ed + Ei)`) still changes by more than the tolerance is found once the
 //!   change exceeds the tolerance by `z · se`; the next pass would move the region's albedo by
 //!   about half its change (the fixed-point rule's ½).
-
+//!
 //! Tests: `noise_alone_stops`, `real_change_continues`, `regions_sum_the_tiles`,
-//! `previous_variance_recursion` here; the
-//! de-lighting test `round_trip_small_cbox_stops_when_converged` (`tests/delight.rs`).
+//! `previous_variance_recursion` here; the de-lighting test `round_trip_small_cbox_stops_when_converged` (`tests/delight.rs`).
 
 use super::UpdateRule;
 
