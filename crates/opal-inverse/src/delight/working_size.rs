@@ -12,8 +12,8 @@
 //!   setting, the size of its square bitmap texture when its UVs are kept, else the camera rule
 //!   with the texel areas of a trial atlas at [`TRIAL_RESOLUTION`] ([`packed_resolution`]: the
 //!   unwrap's own second step, so the chart packing counts — a 2:1 wall fills half its square
-//!   texture, a sphere's charts about 70 % of theirs; taking the charts to fill the texture, as
-//!   before, estimated 1.31 M texels for the 50-view ring whose atlases had 1.98 M).
+//!   texture; taking the charts to fill the texture, as before, estimated 1.09 M texels for the
+//!   24-view ring whose atlases had 1.67 M, now 1.645 M).
 //!   Scaling every view's pixel count by `s` scales the pixel densities by `s`, so the
 //!   camera-rule resolutions by `sqrt(s)` (then clamped to 256…max as the rule does).
 //! * **Choice** ([`choose_working_size`]): the largest `s ≤ 1` whose estimate fits the budget
