@@ -192,6 +192,9 @@ fn tiny_run_writes_everything_and_scene_loads() {
         "texel_noise",
         "texel_noise_per_object",
         "comm_seconds",
+        "change_max",
+        "change_beyond_noise",
+        "change_regions",
     ];
     for it in report["iterations"].as_array().unwrap() {
         common::assert_keys("delight --json iteration", it, &it_keys, "delight.md");

@@ -6,7 +6,9 @@
 //!   true albedos (64×64, 8 views) → de-lighting → albedos (per-object bounds from the 8-seed
 //!   spread of the ignored `round_trip_small_cbox_seed_spread`) and back-wall texture (against
 //!   its resolution limit + texel noise) vs the truth; `round_trip_small_cbox_with_view_gains`
-//!   the same at 64×64 with known view gains.
+//!   the same at 64×64 with known view gains; `round_trip_small_cbox_stops_when_converged`: the
+//!   stop rule on the same fixture (goes on after a real change, stops before the limit within
+//!   the same bounds).
 //! * `lights_small_constant_albedos_within_1_percent`: independent Mitsuba 3 data committed in
 //!   tests/data/lights_small (two coloured area lights and a point light, 5 small views):
 //!   constant albedos within 1 %; `lights_small_power_sampled_lights_within_1_percent` the
@@ -312,6 +314,38 @@ fn round_trip_small_cbox() {
     assert!(psnr > psnr_bound, "back wall PSNR {psnr} dB < {psnr_bound} dB (expected {psnr_expected})");
     assert!(psnr > 15.0, "{psnr}");
     assert!(r.view_gains.is_none());
+}
+
+/// The stop rule (`delight/convergence.rs`) on the fixture of [`round_trip_small_cbox`], whose
+/// answer is known (the true albedos): the first pass starts from the gathered estimate and
+/// asks for a real change beyond the tolerance, so the run goes on; it stops once a pass
+/// changes no tile by more than 1 % beyond the noise, before the limit of 8 passes, and then
+/// meets the same albedo bounds as [`round_trip_small_cbox`] after its 6 passes.
+#[test]
+fn round_trip_small_cbox_stops_when_converged() {
+    let mut desc = load(&data().join("scene.xml"));
+    let views = small_views(&mut desc, ROUND_TRIP_VIEW_RES);
+    let s = DelightSettings { iterations: 8, tolerance: 0.01, ..round_trip_settings() };
+    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
+    let worst = report(&r, &desc);
+    let stats: Vec<(f64, f64, usize)> =
+        r.iterations.iter().map(|i| (i.change_max, i.change_beyond_noise, i.change_regions)).collect();
+    println!("tile changes (max, beyond the noise, tiles) per pass: {stats:?}");
+    assert!(r.iterations[0].change_beyond_noise > 0.01, "{stats:?}");
+    assert!(r.converged, "{stats:?}");
+    let n = r.iterations.len();
+    assert!((2..8).contains(&n), "{n} passes: {stats:?}");
+    assert!(r.iterations[n - 1].change_beyond_noise < 0.01);
+    assert!(r.iterations[..n - 1].iter().skip(1).all(|i| i.change_beyond_noise >= 0.01));
+    for (id, t) in truth_albedos(&desc) {
+        let m = r.objects.iter().find(|o| o.id == id).unwrap().mean_kd_observed();
+        let bound = if id.ends_with("_box") { 0.046 } else { 0.027 };
+        for c in 0..3 {
+            let e = (m[c] / t[c] as f64 - 1.0).abs();
+            assert!(e < bound, "{id} channel {c}: relative albedo error {e} (bound {bound})");
+        }
+    }
+    assert!(worst < 0.046, "worst relative albedo error {worst}");
 }
 
 fn lights_small() -> PathBuf {
@@ -645,13 +679,8 @@ fn mitsuba_cbox_acceptance() {
     if let Some(t) = std::env::var("OPAL_SR_CG_TOLERANCE").ok().and_then(|v| v.parse().ok()) {
         sr.cg_tolerance = t;
     }
-    let s = DelightSettings {
-        light_paths: paths,
-        iterations: 5,
-        tolerance: 0.0,
-        superres: Some(sr),
-        ..Default::default()
-    };
+    // at most 5 passes, stopped by the default tolerance (issue 17: ≤ 5 iterations, converged)
+    let s = DelightSettings { light_paths: paths, iterations: 5, superres: Some(sr), ..Default::default() };
     let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
     let worst = report(&r, &desc);
     for o in &r.objects {
@@ -660,9 +689,12 @@ fn mitsuba_cbox_acceptance() {
     let truth = opal::image::read::read_image(&dir.join("textures/backwall_albedo.exr")).unwrap();
     let (psnr, n) = backwall_psnr(&r, &truth);
     println!(
-        "back wall PSNR {psnr:.2} dB over {n} texels; worst constant-object error {:.2} %",
-        100.0 * worst
+        "back wall PSNR {psnr:.2} dB over {n} texels; worst constant-object error {:.2} %; {} passes, converged {}",
+        100.0 * worst,
+        r.iterations.len(),
+        r.converged
     );
+    assert!(r.converged, "acceptance: converged within 5 passes");
     assert!(worst < 0.01, "acceptance: mean albedo within 1 %: worst {worst}");
     assert!(psnr >= 38.0, "acceptance: back wall PSNR ≥ 38 dB: {psnr}");
 }

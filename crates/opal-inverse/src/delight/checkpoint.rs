@@ -106,6 +106,9 @@ fn stats_json(s: &IterationStats) -> Value {
         "texel_noise_all": s.texel_noise_all.to_bits(),
         "direct_ratio": f64s(&s.direct_ratio),
         "comm_seconds": s.comm_seconds.to_bits(),
+        "change_max": s.change_max.to_bits(),
+        "change_beyond_noise": s.change_beyond_noise.to_bits(),
+        "change_regions": s.change_regions,
     })
 }
 
@@ -318,6 +321,10 @@ pub(in crate::delight) fn load(dir: &Path, fingerprint: u64, objects: &[ObjectRe
             direct_ratio: fv(&s["direct_ratio"], "direct_ratio")?,
             // absent in checkpoints written before MPI runs existed
             comm_seconds: s["comm_seconds"].as_u64().map_or(0.0, f64::from_bits),
+            // absent in checkpoints written before the stop rule measured it: not converged
+            change_max: s["change_max"].as_u64().map_or(f64::NAN, f64::from_bits),
+            change_beyond_noise: s["change_beyond_noise"].as_u64().map_or(f64::NAN, f64::from_bits),
+            change_regions: s["change_regions"].as_u64().unwrap_or(0) as usize,
         });
     }
     if at != bin.len() {

@@ -34,7 +34,8 @@
 //!    quartile (Tukey 1.5·IQR) outlier rejection per object gives the max/mean error of the
 //!    iteration; `Ei` is updated by the fixed-point rule `Ei ← Ei_r` (default) or the paper's
 //!    gradient step `Ei ← max(0, Ei + α_k Kd/π e)`, `α_k = α₀/(1+k)`; `Kd` is recomputed with
-//!    the [0, 1] correction; stop when the max error is below the tolerance or at the limit;
+//!    the [0, 1] correction; stop once a pass changes no tile of an object by more than the
+//!    tolerance beyond its own Monte-Carlo noise ([`convergence`]) or at the limit;
 //! 7. what the data cannot determine ([`unseen`]): per object the part of its light that
 //!    arrived via texels no view observed, and how far their fill can move its albedo.
 //!
@@ -60,6 +61,7 @@ pub mod atlas;
 mod checkpoint;
 pub mod colmap;
 pub mod contact;
+pub mod convergence;
 mod direct;
 pub mod downsample;
 pub mod footprint;

@@ -111,6 +111,14 @@ pub struct IterationStats {
     /// tracing's sums over the ranks, the per-object results and, in the first pass, the
     /// super-resolved maps (transfer and waiting for the other ranks; 0 alone).
     pub comm_seconds: f64,
+    /// Largest |change| of a tile's mean irradiance this pass asked for (relative;
+    /// [`super::convergence`]).
+    pub change_max: f64,
+    /// Largest change of a tile beyond what the pass's noise explains (the stop statistic,
+    /// compared with the tolerance; NaN when no tile took part).
+    pub change_beyond_noise: f64,
+    /// Tiles that took part.
+    pub change_regions: usize,
 }
 
 /// Result of [`delight`](super::delight).
@@ -126,7 +134,8 @@ pub struct DelightResult {
     pub not_recovered: Vec<(String, String)>,
     /// Iterations.
     pub iterations: Vec<IterationStats>,
-    /// The error fell below the tolerance.
+    /// A pass changed no tile by more than the tolerance beyond its noise
+    /// ([`super::convergence`]).
     pub converged: bool,
     /// Estimated per-view gains (`None` with [`super::ViewGainMode::Fixed`]); the recovered
     /// albedos are those of the views divided by them.

@@ -46,7 +46,9 @@ pub struct DelightSettings {
     pub objects: Option<Vec<String>>,
     /// Maximum number of light-tracing iterations.
     pub iterations: usize,
-    /// Stop when the max relative error (luminance, outliers removed) falls below this.
+    /// Stop once a pass changes no tile of any object's irradiance (and so albedo) by more than
+    /// this beyond what the pass's Monte-Carlo noise explains ([`super::convergence`]; relative).
+    /// 0: every pass runs (the statistic is never below 0).
     pub tolerance: f64,
     /// Light paths per light-tracing pass: fixed, or from the texel count and a target noise
     /// ([`super::noise`]).

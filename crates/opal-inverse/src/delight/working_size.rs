@@ -10,10 +10,12 @@
 //!   path count, the texels that count serves at the default target noise.
 //! * **Texel estimate** ([`estimate_texels`]): per object the resolution it will get — the
 //!   setting, the size of its square bitmap texture when its UVs are kept, else the camera rule
-//!   with the charts taken to fill the texture (`sqrt(area × density)` at the best-seen quantile,
-//!   [`super::footprint::camera_resolution`]). Scaling every view's pixel count by `s` scales the
-//!   pixel densities by `s`, so the camera-rule resolutions by `sqrt(s)` (then clamped to
-//!   256…max as the rule does).
+//!   with the texel areas of a trial atlas at [`TRIAL_RESOLUTION`] ([`packed_resolution`]: the
+//!   unwrap's own second step, so the chart packing counts — a 2:1 wall fills half its square
+//!   texture; taking the charts to fill the texture, as before, estimated 1.09 M texels for the
+//!   24-view ring whose atlases had 1.67 M, now 1.645 M).
+//!   Scaling every view's pixel count by `s` scales the pixel densities by `s`, so the
+//!   camera-rule resolutions by `sqrt(s)` (then clamped to 256…max as the rule does).
 //! * **Choice** ([`choose_working_size`]): the largest `s ≤ 1` whose estimate fits the budget
 //!   (bisection: the estimate grows with `s`); when even the smallest resolutions (every
 //!   camera-rule object at 256²) exceed the budget, the largest `s` at which the estimate stops
@@ -22,15 +24,18 @@
 //!   which the shared box's views meet every goal: ≥ 64-pixel regions for the report and the
 //!   pixels of the luminance maps).
 //!
-//! Tests: `budget_inverts_the_path_rule`, `estimate_scales_with_the_pixel_count` and
+//! Tests: `budget_inverts_the_path_rule`, `estimate_scales_with_the_pixel_count`,
+//! `estimate_counts_the_packing` and
 //! `choice_fits_the_budget_and_keeps_the_floor` below; the CLI's defaults test
 //! (`crates/opal-cli/tests/delight.rs`).
 
-use super::footprint::{self, MIN_RESOLUTION};
+use super::atlas::build_atlas;
+use super::footprint::{self, FootprintSample, MIN_RESOLUTION};
 use super::noise::{DEFAULT_TARGET_NOISE, PATHS_PER_TEXEL_AT_UNIT_NOISE};
 use super::{DelightSettings, LightPaths};
 use opal::camera::Camera;
 use opal::error::Result;
+use opal::geometry::TriangleMesh;
 use opal::scene::Scene;
 use opal::scene::desc::{BsdfDesc, SceneDesc, TextureDesc};
 
@@ -98,12 +103,38 @@ pub fn estimate_texels(
                 return TexelRule::Fixed(r);
             }
             let samples = footprint::surface_footprints(scene, &sh.mesh, cameras);
-            match footprint::camera_resolution(&samples, sh.mesh.area(), None, usize::MAX).1 {
+            match packed_resolution(&sh.mesh, &samples, s.keep_uvs) {
                 Some(full) => TexelRule::Cameras { full, max },
                 None => TexelRule::Fixed(MIN_RESOLUTION),
             }
         })
         .collect())
+}
+
+/// Resolution of the trial atlas that measures an object's packing ([`packed_resolution`]).
+pub const TRIAL_RESOLUTION: usize = 512;
+
+/// The camera rule's unclamped resolution of `mesh` at the full-size views with the chart
+/// packing (and the UV stretch of kept UVs) accounted for: from the texel areas of a trial atlas
+/// at [`TRIAL_RESOLUTION`], as the unwrap's second step does with its first atlas
+/// ([`footprint::camera_atlas`]; the texel areas scale with 1/resolution², so the result does
+/// not depend on the trial's size but through the packing, whose one-texel gutters take a
+/// larger share at 512 than at most final sizes: a slight overestimate of the texels). Falls
+/// back to the charts filling the texture when the trial fails or renumbers the triangles;
+/// `None` when no view sees the object.
+fn packed_resolution(mesh: &TriangleMesh, samples: &[FootprintSample], keep_uvs: bool) -> Option<f64> {
+    let fill = || footprint::camera_resolution(samples, mesh.area(), None, usize::MAX).1;
+    match build_atlas(mesh, TRIAL_RESOLUTION, keep_uvs) {
+        Ok(a) if a.mesh.triangle_count() == mesh.triangle_count() => footprint::camera_resolution(
+            samples,
+            mesh.area(),
+            Some((&a.texel_area, TRIAL_RESOLUTION)),
+            usize::MAX,
+        )
+        .1
+        .or_else(fill),
+        _ => fill(),
+    }
 }
 
 /// Size of a square bitmap reflectance of a diffuse (or two-sided diffuse) BSDF.
@@ -211,6 +242,51 @@ mod tests {
         assert_eq!(c.texels(1e-4), 256.0 * 256.0);
         assert_eq!(TexelRule::Cameras { full: 8000.0, max: 4096 }.texels(1.0), 4096.0 * 4096.0);
         assert_eq!(TexelRule::Fixed(300).texels(0.01), 90_000.0);
+    }
+
+    /// A 4 × 2 wall without UVs seen head-on by a 1024² view: its one chart fills half of its
+    /// square texture, so the atlas has about twice the texels of the charts-fill-the-texture
+    /// rule; the estimate matches the unwrap's atlas within 5 % (the trial's gutters).
+    #[test]
+    fn estimate_counts_the_packing() {
+        use opal::math::{Mat4, Vec3};
+        use opal::scene::desc::{SensorDesc, ShapeDesc};
+        use opal::spectrum::Spectrum;
+        let mut mesh = opal::geometry::shapes::rectangle_mesh();
+        mesh.positions.iter_mut().for_each(|p| p.x *= 2.0);
+        mesh.uvs.clear();
+        let desc = SceneDesc {
+            shapes: vec![ShapeDesc {
+                id: "wall".into(),
+                mesh: mesh.clone(),
+                bsdf: BsdfDesc::Diffuse { reflectance: TextureDesc::Constant(Spectrum::splat(0.5)) },
+                emitter: None,
+                origin: None,
+            }],
+            ..Default::default()
+        };
+        let scene = Scene::build(&desc).unwrap();
+        let mut to_world = Mat4::look_at_rh(Vec3::new(0.0, 0.0, 6.0), Vec3::ZERO, Vec3::Y).inverse();
+        to_world *= Mat4::from_scale(Vec3::new(-1.0, 1.0, -1.0));
+        let cam = Camera::new(&SensorDesc {
+            id: "c".into(),
+            to_world,
+            fov_x_deg: 2.0 * 0.5f32.atan().to_degrees(),
+            width: 1024,
+            height: 1024,
+            near_clip: 1e-3,
+            far_clip: 1e3,
+            spp: None,
+        });
+        let s = DelightSettings { keep_uvs: false, ..Default::default() };
+        let rules = estimate_texels(&desc, &scene, std::slice::from_ref(&cam), &s).unwrap();
+        let est = rules[0].texels(1.0);
+        let samples = footprint::surface_footprints(&scene, &mesh, std::slice::from_ref(&cam));
+        let (a, _) = footprint::camera_atlas(&mesh, &samples, false, s.max_resolution).unwrap();
+        let real = (a.width * a.height) as f64;
+        let fill = footprint::camera_resolution(&samples, mesh.area(), None, usize::MAX).1.unwrap().powi(2);
+        assert!(real > 1.8 * fill, "real {real} fill {fill}");
+        assert!((est / real - 1.0).abs() < 0.05, "estimate {est} real {real}");
     }
 
     /// The chosen size fits the budget and is the largest that does (up to one pixel); small

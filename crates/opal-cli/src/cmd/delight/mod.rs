@@ -46,7 +46,8 @@ pub struct DelightArgs {
     /// Maximum number of light-tracing iterations.
     #[arg(long, default_value_t = 5)]
     pub iterations: usize,
-    /// Stop when the max relative error (outliers removed) is below this.
+    /// Stop once a pass changes no tile of an object's irradiance by more than this (relative)
+    /// beyond what the pass's own noise explains (report.json `converged`); 0 runs every pass.
     #[arg(long, default_value_t = 0.01)]
     pub tolerance: f64,
     /// Light paths per light-tracing pass: `auto` (from the texel count and `--target-noise`) or
@@ -627,7 +628,19 @@ fn write_outputs(
                 dashed: false,
                 marks: false,
             },
-        ],
+            // the stop statistic against the tolerance line (passes with no change beyond the
+            // noise have 0, which the log axis cannot show: left out)
+            crate::plot::Series {
+                name: "tile change beyond noise".into(),
+                points: series(&|i| i.change_beyond_noise).into_iter().filter(|p| p.1 > 0.0).collect(),
+                color: 2,
+                dashed: true,
+                marks: true,
+            },
+        ]
+        .into_iter()
+        .filter(|s| !s.points.is_empty())
+        .collect(),
         // a non-positive reference line on the log axis made plotters allocate without bound
         // (22 GB, killed) in the first full run: draw it only when it is positive
         hline: (a.tolerance > 0.0).then_some(100.0 * a.tolerance),
@@ -652,6 +665,9 @@ fn write_outputs(
                 "seconds": i.seconds,
                 "light_paths": i.light_paths,
                 "comm_seconds": i.comm_seconds,
+                "change_max": finite_or_null(i.change_max),
+                "change_beyond_noise": finite_or_null(i.change_beyond_noise),
+                "change_regions": i.change_regions,
                 "texel_noise": finite_or_null(i.texel_noise_all),
                 "texel_noise_per_object": r.objects.iter().zip(&i.texel_noise).map(|(o, v)| json!({"id": o.id, "noise": finite_or_null(*v)})).collect::<Vec<_>>(),
             })

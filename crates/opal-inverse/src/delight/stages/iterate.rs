@@ -4,8 +4,10 @@
 //! texels light reaches ([`smooth_in_charts_masked`]); per object ([`object_pass`]) the error
 //! `e = L − Kd/π (Ed + Ei_r)` relative to `L` with quartile (Tukey 1.5·IQR) outlier rejection,
 //! the update of `Ei` ([`UpdateRule`]) and of `Kd`. After the first pass the luminance maps are
-//! replaced by the super-resolved ones ([`superres_pass`]). Stops below the tolerance or at the
-//! iteration limit. Tests: `tests/delight.rs` (round trip on a small Cornell box, convergence).
+//! replaced by the super-resolved ones ([`superres_pass`]). Stops once a pass changes no tile
+//! by more than the tolerance beyond its noise ([`convergence`], per tile [`change_tiles`]) or at
+//! the iteration limit. Tests: `tests/delight.rs` (round trip on a small Cornell box, the stop
+//! rule `round_trip_small_cbox_stops_when_converged`).
 
 // Index loops over parallel per-texel arrays read more clearly than zipped iterators here.
 #![allow(clippy::needless_range_loop)]
@@ -14,12 +16,13 @@ use super::Inputs;
 use crate::delight::albedo::{fill_unseen, finish_luminance, quartiles, update_kd};
 use crate::delight::atlas::NO_TRI;
 use crate::delight::checkpoint;
+use crate::delight::convergence::TileSums;
 use crate::delight::progress::Stage;
 use crate::delight::timing::{StageClock, Timings};
 use crate::delight::views::{PureBuffer, View};
 use crate::delight::{
-    DelightSettings, IterationStats, LightPaths, ObjectResult, UpdateRule, luminance, noise, reached_texels,
-    recovered_desc, smooth_in_charts_masked, split, superres,
+    DelightSettings, IterationStats, LightPaths, ObjectResult, UpdateRule, convergence, luminance, noise,
+    reached_texels, recovered_desc, smooth_in_charts_masked, split, superres,
 };
 use opal::error::{Error, Result};
 use opal::integrator::light_tracer::{self, IrradianceMaps, IrradianceTarget, LightTraceSettings};
@@ -31,7 +34,7 @@ use rayon::prelude::*;
 pub(in crate::delight) struct Iterated {
     /// Statistics per iteration.
     pub iterations: Vec<IterationStats>,
-    /// The error fell below the tolerance.
+    /// A pass changed no tile by more than the tolerance beyond its noise ([`stops`]).
     pub converged: bool,
     /// Light paths traced in total.
     pub light_paths: u64,
@@ -55,6 +58,8 @@ struct ObjectPass {
     noise: f64,
     /// Its residuals, corrected for the smoothing window (pooled over the objects).
     residuals: Vec<f64>,
+    /// The pass's change per tile of the atlas ([`convergence`]).
+    tiles: Vec<TileSums>,
 }
 
 impl ObjectPass {
@@ -69,6 +74,11 @@ impl ObjectPass {
         p.f32s(&self.rel);
         p.u64(self.residuals.len() as u64);
         self.residuals.iter().for_each(|&x| p.f64(x));
+        p.u64(self.tiles.len() as u64);
+        for t in &self.tiles {
+            [t.w, t.wd, t.w2v].iter().for_each(|&x| p.f64(x));
+            p.u64(t.n);
+        }
     }
     /// Reads what [`ObjectPass::put`] wrote.
     fn get(u: &mut opal::dist::Unpacker) -> ObjectPass {
@@ -79,7 +89,9 @@ impl ObjectPass {
         let rel = (0..n).map(|_| u.f32()).collect();
         let n = u.u64() as usize;
         let residuals = (0..n).map(|_| u.f64()).collect();
-        ObjectPass { max, sum, count, outliers, rel, direct_ratio, noise, residuals }
+        let n = u.u64() as usize;
+        let tiles = (0..n).map(|_| TileSums { w: u.f64(), wd: u.f64(), w2v: u.f64(), n: u.u64() }).collect();
+        ObjectPass { max, sum, count, outliers, rel, direct_ratio, noise, residuals, tiles }
     }
 }
 
@@ -131,7 +143,7 @@ pub(in crate::delight) fn iterate(
             m.restore(o);
         }
         log(&format!("resuming after iteration {} (checkpoint {})", saved.iteration, dir.display()));
-        converged = saved.iterations.last().is_some_and(|st| st.max_rel_error < s.tolerance);
+        converged = saved.iterations.last().is_some_and(|st| stops(st, s));
         start = if converged { usize::MAX } else { saved.iteration + 1 };
         iterations = saved.iterations;
         light_paths = saved.light_paths;
@@ -204,7 +216,9 @@ pub(in crate::delight) fn iterate(
         drop(bar);
         let mut texel_noise = Vec::new();
         let mut all_residuals = Vec::new();
+        let mut tiles = Vec::new();
         for p in post {
+            tiles.extend(p.tiles);
             texel_noise.push(p.noise);
             all_residuals.extend(p.residuals);
             gmax = gmax.max(p.max);
@@ -227,6 +241,7 @@ pub(in crate::delight) fn iterate(
             timings.push("superres", t1.elapsed());
         }
         let c0 = StageClock::start();
+        let change = convergence::assess(&tiles, convergence::previous_variance(k, s.update));
         // the residuals are already corrected for their windows
         let texel_noise_all = noise::texel_noise(&all_residuals, usize::MAX);
         drop(all_residuals);
@@ -255,16 +270,24 @@ pub(in crate::delight) fn iterate(
             texel_noise,
             texel_noise_all,
             comm_seconds,
+            change_max: change.max_change,
+            change_beyond_noise: change.beyond_noise,
+            change_regions: change.regions,
         };
         log(&format!(
-            "iteration {k}: max rel. error {:.2} %, mean {:.2} % ({:.1} s, {} light paths, per-texel noise {:.1} %)",
+            "iteration {k}: max rel. error {:.2} %, mean {:.2} % ({:.1} s, {} light paths, per-texel noise {:.1} %); \
+             largest change of a region {:.2} %, {:.2} % beyond the noise ({} regions, z = {:.2})",
             100.0 * st.max_rel_error,
             100.0 * st.mean_rel_error,
             st.seconds,
             paths,
-            100.0 * st.texel_noise_all
+            100.0 * st.texel_noise_all,
+            100.0 * st.change_max,
+            100.0 * st.change_beyond_noise,
+            st.change_regions,
+            change.z
         ));
-        let done = st.max_rel_error < s.tolerance;
+        let done = stops(&st, s);
         iterations.push(st);
         if let Some(dir) = &s.checkpoint {
             saver.save(dir, fp, k, light_paths, objects, &iterations, &warnings[first_warning..])?;
@@ -282,6 +305,14 @@ pub(in crate::delight) fn iterate(
     timings.push("light_tracing", (lt_wall, lt_cpu));
     timings.push("iteration_post", (post_wall, post_cpu));
     Ok(Iterated { iterations, converged, light_paths })
+}
+
+/// Whether the run stops after the pass of `st` ([`convergence`]): its change beyond the noise
+/// is below the tolerance, and the maps did not change after it was measured (the first pass's
+/// statistics precede the super-resolution, so with it a second pass is needed).
+fn stops(st: &IterationStats, s: &DelightSettings) -> bool {
+    let first = if s.superres.is_some() { 2 } else { 1 };
+    st.iteration >= first && st.change_beyond_noise < s.tolerance
 }
 
 /// What an interruption after iteration `done` leaves (for [`Error::Interrupted`]).
@@ -319,14 +350,46 @@ fn object_pass(
         noise::texel_residuals(&ei_raw, &ei_r, &mask).iter().map(|x| x * corr).collect();
     let noise = noise::texel_noise(&residuals, usize::MAX);
     let direct_ratio = direct_ratio(o, m);
-    let (rel, e_abs, stats) = error_stats(o, &ei_r);
+    let (rel, e_abs, inlier, stats) = error_stats(o, &ei_r);
+    let tiles = change_tiles(o, &ei_raw, &ei_r, &inlier, window);
     update_ei(o, &ei_r, &e_abs, k, s.update);
     o.clamped = update_kd(o);
     if s.debug.print {
         debug_print(o, log);
     }
     let (max, sum, count, outliers) = stats;
-    ObjectPass { max, sum, count, outliers, rel, direct_ratio, noise, residuals }
+    ObjectPass { max, sum, count, outliers, rel, direct_ratio, noise, residuals, tiles }
+}
+
+/// The pass's change per tile ([`convergence`]): over the covered, observed inlier texels with
+/// `Kd < 1` the change `d = (Ei − Ei_raw) / (Ed + Ei)` asked of the current `Ei`, weighted by
+/// the coverage, and its noise variance from the raw map's residual against the smoothed one
+/// `ei_r` (`window` texels); before the update of `Ei`.
+fn change_tiles(
+    o: &ObjectResult,
+    ei_raw: &[[f32; 3]],
+    ei_r: &[[f32; 3]],
+    inlier: &[bool],
+    window: usize,
+) -> Vec<TileSums> {
+    let (w, h) = (o.atlas.width, o.atlas.height);
+    let mut tiles = vec![TileSums::default(); convergence::TILES_PER_SIDE * convergence::TILES_PER_SIDE];
+    let corr = window.max(2) as f64 / (window.max(2) - 1) as f64;
+    for i in 0..o.l.len() {
+        if !inlier[i] || o.atlas.texel_tri[i] == NO_TRI || o.kd[i].iter().any(|&k| k >= 1.0) {
+            continue;
+        }
+        let old = luminance(o.ei[i]) as f64;
+        let total = luminance(o.ed[i]) as f64 + old;
+        if total <= 0.0 {
+            continue;
+        }
+        let smooth = luminance(ei_r[i]) as f64;
+        let resid = (luminance(ei_raw[i]) as f64 - smooth) / total;
+        let cov = o.atlas.coverage[i].max(1.0 / 16.0) as f64;
+        tiles[convergence::tile_of(i, w, h)].add(cov, (old - smooth) / total, resid * resid * corr);
+    }
+    tiles
 }
 
 /// Direct consistency: mean of the tracer's first-hit irradiance over the light-sampled `Ed`
@@ -346,10 +409,14 @@ fn direct_ratio(o: &ObjectResult, m: &IrradianceMaps) -> f64 {
 }
 
 /// Error of the current albedo against the luminance with the indirect irradiance `ei_r`:
-/// per texel the relative luminance error (NaN where not observed) and the absolute RGB error
-/// (zero at outliers), and over the inliers (max, sum, count, outliers).
+/// per texel the relative luminance error (NaN where not observed), the absolute RGB error
+/// (zero at outliers) and whether it is an inlier, and over the inliers (max, sum, count,
+/// outliers).
 #[allow(clippy::type_complexity)]
-fn error_stats(o: &ObjectResult, ei_r: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>, (f64, f64, usize, usize)) {
+fn error_stats(
+    o: &ObjectResult,
+    ei_r: &[[f32; 3]],
+) -> (Vec<f32>, Vec<[f32; 3]>, Vec<bool>, (f64, f64, usize, usize)) {
     let n = o.l.len();
     let mut rel = vec![f32::NAN; n];
     let mut vals = Vec::new();
@@ -367,6 +434,7 @@ fn error_stats(o: &ObjectResult, ei_r: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>,
         }
     }
     let (mut omax, mut osum, mut ocount, mut outl) = (0f64, 0f64, 0usize, 0usize);
+    let mut inlier = vec![false; n];
     if !vals.is_empty() {
         let (q1, q3) = quartiles(&mut vals);
         let iqr = q3 - q1;
@@ -384,9 +452,10 @@ fn error_stats(o: &ObjectResult, ei_r: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>,
             omax = omax.max(r.abs());
             osum += r.abs();
             ocount += 1;
+            inlier[i] = true;
         }
     }
-    (rel, e_abs, (omax, osum, ocount, outl))
+    (rel, e_abs, inlier, (omax, osum, ocount, outl))
 }
 
 /// Update of `Ei` after pass `k` by the rule.
