@@ -59,6 +59,8 @@ struct AtCameras {
     se_band: f64,
     n_band: usize,
     se_noise: f64,
+    /// Relative standard error of the photo (mean over RGB) at the pixels the shape fills.
+    rel_stderr: Vec<f64>,
 }
 
 fn at_cameras(
@@ -73,7 +75,7 @@ fn at_cameras(
     let (tt, rt) = (reflectance(truth_desc, id), reflectance(rec_desc, id));
     let ts = truth.shapes.iter().position(|s| s.id == id).unwrap() as u32;
     let rs = rec.shapes.iter().position(|s| s.id == id).unwrap() as u32;
-    let mut a = AtCameras { se: 0.0, n: 0, se_band: 0.0, n_band: 0, se_noise: 0.0 };
+    let mut a = AtCameras { se: 0.0, n: 0, se_band: 0.0, n_band: 0, se_noise: 0.0, rel_stderr: Vec::new() };
     for ((v, band), se_img) in views.iter().zip(bands).zip(stderr) {
         let cam = &v.camera;
         for y in 0..cam.height {
@@ -101,6 +103,9 @@ fn at_cameras(
                 }
                 let px = y * cam.width + x;
                 let (l, s) = (v.image.data[px], se_img.data[px]);
+                if k == SUB * SUB && l.0.iter().all(|&c| c > 0.0) {
+                    a.rel_stderr.push((0..3).map(|c| (s[c] / l[c]) as f64).sum::<f64>() / 3.0);
+                }
                 let mut e = 0.0;
                 for c in 0..3 {
                     e += ((sg[c] - st[c]) / k as f64).powi(2);
@@ -165,7 +170,19 @@ fn mitsuba_scan_room_acceptance() {
         match reflectance(&truth_desc, &s.id) {
             TextureDesc::Constant(c) => worst = worst.max(common::constant_albedo_error(o, c.0)),
             TextureDesc::Bitmap(_) => {
-                let a = at_cameras(&s.id, (&truth_desc, &truth), (&rec_desc, &rec), &views, &bands, &stderr);
+                let mut a =
+                    at_cameras(&s.id, (&truth_desc, &truth), (&rec_desc, &rec), &views, &bands, &stderr);
+                let med = a.rel_stderr.len() / 2;
+                if med > 0 {
+                    let (_, m, _) = a.rel_stderr.select_nth_unstable_by(med, f64::total_cmp);
+                    println!(
+                        "{:10} photos' median relative standard error (stderr images) {:.2} %, measured by the \
+                         super-resolution {:?}",
+                        s.id,
+                        100.0 * *m,
+                        o.superres.map(|i| i.photo_noise)
+                    );
+                }
                 let p = psnr_db(a.se, a.n, 1.0);
                 println!(
                     "{:10} texture PSNR {p:.2} dB pixel-averaged at the input cameras ({} pixels); contact band \

@@ -587,7 +587,7 @@ fn superres_pass(
             finish_luminance(o);
             o.clamped = update_kd(o);
             let noise =
-                info.photo_noise.map_or(String::new(), |x| format!(", photo noise {:.1} %", 100.0 * x));
+                info.photo_noise.map_or(String::new(), |x| format!(", photo noise {:.2} %", 100.0 * x));
             let res = info.residual_to_noise.map_or(String::new(), |r| format!(", residual {r:.3} of the noise"));
             Some(format!(
                 "super-resolved luminance {}: {:.1} % of texels seen (prior weight {:.2e}{noise}; {} reweightings, {} CG steps{res}{}; {:.1} s)",

@@ -31,8 +31,9 @@
 //! its mean), so λ and ε are scale-free; λ is scaled by the observation density (rows per
 //! unknown / 2.5, the density of the reference data the defaults were chosen on) and, below that
 //! density, by `max(1, (σ/σ_ref)²)`, σ the photos' relative noise measured on the object
-//! ([`super::photo_noise`]), σ_ref that of the reference photos: the data term's rows are
-//! weighted to mean 1, so λ assumed σ_ref, and noisier photos need the MAP weight (without it the
+//! ([`super::photo_noise`]; texture detail is not counted as noise), σ_ref that of the
+//! reference photos ([`SrSettings::reference_noise`]): the data term's rows are weighted to
+//! mean 1, so λ assumed σ_ref, and noisier photos need the MAP weight (without it the
 //! texels of 24 views of 160×120 at 8 spp were ~3× noisier than back-projection's and the
 //! [0, 1] clamp of the albedo biased the means by up to 25 %, docs/delight.md).
 //!

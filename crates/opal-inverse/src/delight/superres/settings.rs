@@ -34,9 +34,12 @@ pub struct SrSettings {
     /// pixel whose footprint covers many texels, and the solve's value there, fitted to those
     /// pixels' averages, beats inpainting it).
     pub min_weight: f32,
-    /// Relative noise σ_ref of the photos [`SrSettings::lambda`] was chosen on (measured by
-    /// [`super::photo_noise::relative_photo_noise`] on the reference Cornell box's back wall:
-    /// 0.022). Where the pixel rows per unknown are below the reference density (2.5), the prior
+    /// Relative noise σ_ref above which the prior weight is scaled: the reading on the reference
+    /// Cornell box's back wall, where [`SrSettings::lambda`] was chosen, of the photo-noise
+    /// estimate over all texels (0.022; the estimate now used,
+    /// [`super::photo_noise::relative_photo_noise`] over the flattest texels, reads 0.0137 there:
+    /// the back wall's texture had inflated it; kept, docs/delight.md "Texture detail is not
+    /// noise"). Where the pixel rows per unknown are below the reference density (2.5), the prior
     /// weight is multiplied by `max(1, (σ/σ_ref)²)` with σ the photos' relative noise measured on
     /// the object (the MAP weight for noisier photos); when it cannot be
     /// measured (no texel seen by two views) the solve returns `None` (the caller keeps the
