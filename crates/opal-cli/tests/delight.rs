@@ -665,8 +665,9 @@ fn acceptance_mitsuba_cbox() {
 /// holds the poses (readable as views again). The tiny 24² views have too few pixels for an
 /// alignment (< 500), so every correction is rejected, flagged and the given poses are kept.
 /// `--max-view-pixels`: 24² views limited to 144 pixels are read as 12² views (box-filtered,
-/// same frustum); the re-renders and the region statistics follow the
-/// coarse views; report.json gives the working sizes and the memory per stage.
+/// same frustum, the reading's progress one step per view); the re-renders and the region
+/// statistics follow the coarse views; report.json gives the working sizes and the memory per
+/// stage.
 #[test]
 fn max_view_pixels_works_from_downsampled_views() {
     let tmp = tempfile::tempdir().unwrap();
@@ -682,9 +683,20 @@ fn max_view_pixels_works_from_downsampled_views() {
     assert_eq!(report["photo_sizes"][0], serde_json::json!([24, 24]));
     // the photos as read: the mean of a coarse view is that of the full one (box filter)
     let (full, _) = opal_inverse::delight::views::read_views(&tmp.path().join("transforms.json")).unwrap();
-    let (coarse, _) =
-        opal_inverse::delight::views::read_views_limited(&tmp.path().join("transforms.json"), Some(144))
-            .unwrap();
+    let calls: std::sync::Arc<std::sync::Mutex<Vec<(String, u64, u64)>>> = Default::default();
+    let c = calls.clone();
+    let progress =
+        opal_inverse::delight::Progress::new(move |st, d, t| c.lock().unwrap().push((st.to_string(), d, t)));
+    let (coarse, _) = opal_inverse::delight::views::read_views_limited(
+        &tmp.path().join("transforms.json"),
+        Some(144),
+        Some(&progress),
+    )
+    .unwrap();
+    // the progress of the reading: one step per view
+    let n = coarse.len() as u64;
+    let want: Vec<(String, u64, u64)> = (0..=n).map(|d| ("read views".to_string(), d, n)).collect();
+    assert_eq!(*calls.lock().unwrap(), want);
     for (f, c) in full.iter().zip(&coarse) {
         let mean =
             |i: &opal::image::Image| i.data.iter().map(|p| p.0[1] as f64).sum::<f64>() / i.data.len() as f64;

@@ -901,6 +901,7 @@ fn progress_is_monotone_per_stage() {
     let want = [
         "unwrap",
         "direct",
+        "direct penumbrae",
         "luminance",
         "gather",
         "light tracing 1",
@@ -919,7 +920,31 @@ fn progress_is_monotone_per_stage() {
         assert!(mine.iter().all(|&(_, t)| t == total), "{st}: {mine:?}");
         assert!(mine.windows(2).all(|w| w[0].0 <= w[1].0), "{st}: {mine:?}");
     }
-    // the light tracing reports per batch: more than a start and an end
-    let lt = calls.iter().filter(|c| c.0 == "light tracing 1").count();
-    assert!(lt > 2, "{lt}");
+    // the light tracing reports per batch, the direct light per group of texels from inside its
+    // split: more than a start and an end
+    for st in ["light tracing 1", "direct"] {
+        let n = calls.iter().filter(|c| c.0 == st).count();
+        assert!(n > 2, "{st}: {n}");
+    }
+}
+
+/// The super-resolution builds, solves and drops one object's operator after the other (the
+/// peak holds the largest object's, not all of them): the maps are the same bits whatever the
+/// thread count — with one thread the objects ran one after the other before too, and each
+/// object's solve never depended on the others running beside it.
+#[test]
+fn superres_objects_one_at_a_time_for_any_thread_count() {
+    let mut desc = load(&data().join("scene.xml"));
+    let views = small_views(&mut desc, 32);
+    let s = DelightSettings { iterations: 1, light_paths: LightPaths::Fixed(200_000), ..small_settings() };
+    assert!(s.superres.is_some());
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let r = pool.install(|| delight(&desc, &views, &s, &|_| {}).unwrap());
+        assert!(r.objects.iter().any(|o| o.superres.is_some()));
+        let l: Vec<u32> = r.objects.iter().flat_map(|o| o.l.iter().flatten().map(|v| v.to_bits())).collect();
+        (kd_hash(&r), l)
+    };
+    let one = run(1);
+    assert_eq!(run(3), one);
 }

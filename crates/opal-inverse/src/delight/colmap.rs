@@ -334,16 +334,22 @@ pub fn read_colmap_frames(model_dir: &Path, image_dir: &Path) -> Result<Vec<Colm
 /// from `image_dir` as views (resampled onto ideal pinholes, see the module docs); returns the
 /// views (sorted by name) and warnings (masked pixels).
 pub fn read_colmap(model_dir: &Path, image_dir: &Path) -> Result<(Vec<View>, Vec<String>)> {
-    colmap_views(read_colmap_frames(model_dir, image_dir)?, None)
+    colmap_views(read_colmap_frames(model_dir, image_dir)?, None, None)
 }
 
 /// The views of `frames` ([`read_colmap_frames`]): each photo is read, resampled onto its ideal
 /// pinhole ([`undistort`]) and, with `max_pixels`, box-filtered to at most that many pixels
 /// ([`super::downsample::downsample_view`]) before the next photo is read, so only one photo at
-/// full size is held at a time. The warnings count the masked pixels at full size.
-pub fn colmap_views(frames: Vec<ColmapFrame>, max_pixels: Option<usize>) -> Result<(Vec<View>, Vec<String>)> {
+/// full size is held at a time. The warnings count the masked pixels at full size. `progress`:
+/// stage `read views`, one unit per photo read (and resampled).
+pub fn colmap_views(
+    frames: Vec<ColmapFrame>,
+    max_pixels: Option<usize>,
+    progress: Option<&super::Progress>,
+) -> Result<(Vec<View>, Vec<String>)> {
     let mut views = Vec::with_capacity(frames.len());
     let mut warnings = Vec::new();
+    let bar = super::progress::Stage::start(progress, "read views", frames.len() as u64);
     for f in frames {
         let c = &f.intrinsics;
         let src = opal::image::read::read_image(&f.path)?;
@@ -369,7 +375,9 @@ pub fn colmap_views(frames: Vec<ColmapFrame>, max_pixels: Option<usize>) -> Resu
             Some(m) => super::downsample::downsample_view(view, m),
             None => view,
         });
+        bar.step(1);
     }
+    bar.finish();
     Ok((views, warnings))
 }
 
@@ -469,7 +477,7 @@ mod tests {
 
     /// The streaming read: the frames (cameras and photo paths) come without reading a photo,
     /// and each photo box-filtered as it is read is bit for bit the full read downsampled
-    /// afterwards, with the same camera and the same warnings.
+    /// afterwards, with the same camera and the same warnings; the progress counts the photos.
     #[test]
     fn limited_read_box_filters_each_photo_as_it_is_read() {
         let (dir, _) = write_model("limited");
@@ -477,8 +485,15 @@ mod tests {
         let frames = read_colmap_frames(&dir, &dir).unwrap();
         assert_eq!(frames.len(), 2);
         let max = 1000; // 96×64 photos → 39×26
-        let (small, small_warnings) = colmap_views(frames.clone(), Some(max)).unwrap();
+        let calls: std::sync::Arc<std::sync::Mutex<Vec<(String, u64, u64)>>> = Default::default();
+        let c = calls.clone();
+        let progress =
+            crate::delight::Progress::new(move |st, d, t| c.lock().unwrap().push((st.to_string(), d, t)));
+        let (small, small_warnings) = colmap_views(frames.clone(), Some(max), Some(&progress)).unwrap();
         assert_eq!(small_warnings, full_warnings);
+        // one progress step per photo read
+        let want: Vec<(String, u64, u64)> = (0..=2).map(|d| ("read views".to_string(), d, 2)).collect();
+        assert_eq!(*calls.lock().unwrap(), want);
         let bits = |i: &Image| i.data.iter().flat_map(|p| p.0.map(f32::to_bits)).collect::<Vec<_>>();
         for ((f, v), s) in frames.iter().zip(&full).zip(&small) {
             // the frame's camera is the full read's
@@ -498,7 +513,7 @@ mod tests {
         // no photo is read for the frames: a broken photo fails only the views
         std::fs::write(dir.join("b.exr"), b"not an image").unwrap();
         let frames = read_colmap_frames(&dir, &dir).unwrap();
-        assert!(colmap_views(frames, Some(max)).is_err());
+        assert!(colmap_views(frames, Some(max), None).is_err());
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -15,9 +15,11 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::atlas::{Atlas, NO_TRI};
+use super::progress::{Progress, Stage};
 use opal::math::{Vec2, Vec3};
 use opal::sampling::Rng;
 use opal::scene::Scene;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Direct irradiance per texel (step 4): `samples` light samples per texel (and per light when
 /// every light is sampled at every texel, see [`MAX_LIGHTS_PER_TEXEL`]).
@@ -53,7 +55,7 @@ pub fn direct_irradiance_split(
     stream: u64,
     comm: &dyn opal::dist::Comm,
 ) -> Vec<[f32; 3]> {
-    let mut maps = direct_irradiance_many(scene, &[a], samples, seed, &[stream], comm);
+    let mut maps = direct_irradiance_many(scene, &[a], samples, seed, &[stream], comm, None);
     maps.pop().expect("one map per atlas")
 }
 
@@ -65,6 +67,10 @@ pub fn direct_irradiance_split(
 /// penumbra texels of all atlases in a second, so the processes share the whole stage evenly and
 /// meet twice. Every rank returns every map — the same bits as one process computes, atlas by
 /// atlas.
+///
+/// `progress` ([`super::progress`]): stage `direct` counts this process's texels of the first
+/// pass (the pilot, or the only pass), stage `direct penumbrae` those re-estimated at the full
+/// count, both as they finish inside the split (the counts only: the values do not depend on it).
 pub fn direct_irradiance_many(
     scene: &Scene,
     atlases: &[&Atlas],
@@ -72,12 +78,15 @@ pub fn direct_irradiance_many(
     seed: u64,
     streams: &[u64],
     comm: &dyn opal::dist::Comm,
+    progress: Option<&Progress>,
 ) -> Vec<Vec<[f32; 3]>> {
     use opal::dist::map_units;
     assert_eq!(atlases.len(), streams.len(), "one stream per atlas");
     let put = |e: &[f32; 3], p: &mut opal::dist::Packer| p.f32s(e);
     let mut out: Vec<Vec<[f32; 3]>> = atlases.iter().map(|a| vec![[0.0; 3]; a.width * a.height]).collect();
     if scene.light_sampler().is_none() {
+        // no light: nothing to estimate (the stage is reported done)
+        drop(Stage::start(progress, "direct", 0));
         return out;
     }
     // the covered texels of all atlases: (atlas, texel)
@@ -96,8 +105,16 @@ pub fn direct_irradiance_many(
         let (j, i) = (j as usize, i as usize);
         texel_direct(scene, atlases[j], i, side, &mut Rng::new(seed, streams[j] ^ xor, i as u64))
     };
+    let first_bar = Ticker::start(progress, "direct", comm, covered.len());
     if !per_light || pilot == 0 || pilot_side >= side {
-        let vals = map_units(comm, covered.len(), |k| texel(covered[k], side, 0).0, put, |u| u.rgb());
+        let vals = map_units(
+            comm,
+            covered.len(),
+            |k| first_bar.after(texel(covered[k], side, 0).0),
+            put,
+            |u| u.rgb(),
+        );
+        drop(first_bar);
         for (&(j, i), e) in covered.iter().zip(vals) {
             out[j as usize][i as usize] = e;
         }
@@ -107,13 +124,14 @@ pub fn direct_irradiance_many(
     let first: Vec<([f32; 3], bool)> = map_units(
         comm,
         covered.len(),
-        |k| texel(covered[k], pilot_side, PILOT_STREAM),
+        |k| first_bar.after(texel(covered[k], pilot_side, PILOT_STREAM)),
         |(e, m), p| {
             p.f32s(e);
             p.u8(*m as u8);
         },
         |u| (u.rgb(), u.u8() != 0),
     );
+    drop(first_bar);
     let mut mixed: Vec<Vec<bool>> = atlases.iter().map(|a| vec![false; a.width * a.height]).collect();
     for (&(j, i), (e, m)) in covered.iter().zip(first) {
         out[j as usize][i as usize] = e;
@@ -128,11 +146,40 @@ pub fn direct_irradiance_many(
         );
     }
     drop(mixed);
-    let again = map_units(comm, redo_idx.len(), |k| texel(redo_idx[k], side, 0).0, put, |u| u.rgb());
+    let bar = Ticker::start(progress, "direct penumbrae", comm, redo_idx.len());
+    let again =
+        map_units(comm, redo_idx.len(), |k| bar.after(texel(redo_idx[k], side, 0).0), put, |u| u.rgb());
+    drop(bar);
     for (&(j, i), e) in redo_idx.iter().zip(again) {
         out[j as usize][i as usize] = e;
     }
     out
+}
+
+/// Progress of one pass of [`direct_irradiance_many`] over `n` units split across the processes:
+/// a stage of this process's share, stepped from inside the split every `every` units (about
+/// 200 reports per stage) and completed when dropped.
+struct Ticker<'a> {
+    stage: Stage<'a>,
+    done: AtomicU64,
+    every: u64,
+}
+
+impl<'a> Ticker<'a> {
+    fn start(p: Option<&'a Progress>, name: &str, comm: &dyn opal::dist::Comm, n: usize) -> Ticker<'a> {
+        let share = if comm.size() == 1 { n } else { n.saturating_sub(comm.rank()).div_ceil(comm.size()) };
+        let share = share as u64;
+        Ticker { stage: Stage::start(p, name, share), done: AtomicU64::new(0), every: (share / 200).max(1) }
+    }
+
+    /// One unit done; passes its value through.
+    fn after<T>(&self, v: T) -> T {
+        let d = self.done.fetch_add(1, Ordering::Relaxed) + 1;
+        if d % self.every == 0 {
+            self.stage.step(self.every);
+        }
+        v
+    }
 }
 
 /// Texels around a penumbra texel found by the pilot of [`direct_irradiance`] that are estimated
@@ -543,7 +590,7 @@ mod tests {
                 .collect();
             for n in [1, 2, 3] {
                 let all = opal::dist::ThreadComm::run(n, |c| {
-                    direct_irradiance_many(&scene, &refs, (16, pilot), 5, &streams, c)
+                    direct_irradiance_many(&scene, &refs, (16, pilot), 5, &streams, c, None)
                 });
                 for got in all {
                     let got: Vec<Vec<u32>> = got.iter().map(|m| bits(m)).collect();

@@ -5,10 +5,17 @@
 //! `done = 0` and the last `done = total`; `done` never decreases within a stage (reports
 //! from parallel workers are serialised). The library draws nothing itself.
 //!
-//! Stages, in order: `unwrap` (objects), `direct` (texels), `luminance` (objects), `gather`
-//! (one step), `light tracing N` (path batches of pass N; under several processes this
-//! process's share), `superres` (objects, after the first pass), `post N` (objects, pass N's
-//! error maps and albedo update). Tests: `progress_is_monotone_per_stage` in `tests/delight.rs`.
+//! Stages, in order: `read views` (views; reported by the readers
+//! [`read_views_limited`](super::views::read_views_limited) and
+//! [`colmap_views`](super::colmap::colmap_views), before [`delight`](super::delight)), `unwrap`
+//! (objects), `direct` (texels of the first estimate: the pilot, or the only pass) and `direct
+//! penumbrae` (texels re-estimated at the full count; both this process's share, stepped as
+//! texels finish inside the split), `luminance` (objects), `gather` (one step), `light tracing
+//! N` (path batches of pass N; under several processes this process's share), `superres`
+//! (objects, after the first pass), `post N` (objects, pass N's error maps and albedo update).
+//! Tests: `progress_is_monotone_per_stage` in `tests/delight.rs`, the reading's in
+//! `limited_read_box_filters_each_photo_as_it_is_read` (COLMAP) and the CLI's
+//! `max_view_pixels_works_from_downsampled_views`.
 
 use std::sync::{Arc, Mutex};
 

@@ -61,7 +61,7 @@ pub fn opengl_to_mitsuba(m: Mat4) -> Mat4 {
 /// malformed entries are errors; non-finite or negative pixels are masked out (counted in
 /// [`View::bad_pixels`]) and reported in the returned warnings.
 pub fn read_views(path: &Path) -> Result<(Vec<View>, Vec<String>)> {
-    read_views_limited(path, None)
+    read_views_limited(path, None, None)
 }
 
 /// One frame of a `transforms.json`: the image file, its pose and field of view, and its size
@@ -184,11 +184,17 @@ pub fn read_frames(path: &Path) -> Result<Vec<Frame>> {
 
 /// [`read_views`] with each view downsampled to at most `max_pixels` pixels as soon as it is
 /// read ([`super::downsample::downsample_view`]): only one full-size image is held at a time.
-/// The bad-pixel warnings count the pixels of the file.
-pub fn read_views_limited(path: &Path, max_pixels: Option<usize>) -> Result<(Vec<View>, Vec<String>)> {
+/// The bad-pixel warnings count the pixels of the file. `progress`: stage `read views`, one
+/// unit per view read (and downsampled).
+pub fn read_views_limited(
+    path: &Path,
+    max_pixels: Option<usize>,
+    progress: Option<&super::Progress>,
+) -> Result<(Vec<View>, Vec<String>)> {
     let frames = read_frames(path)?;
     let mut views = Vec::new();
     let mut warnings = Vec::new();
+    let bar = super::progress::Stage::start(progress, "read views", frames.len() as u64);
     for fr in frames {
         let img_path = fr.path;
         let mut image = opal::image::read::read_image(&img_path)?;
@@ -224,7 +230,9 @@ pub fn read_views_limited(path: &Path, max_pixels: Option<usize>) -> Result<(Vec
             Some(m) => super::downsample::downsample_view(view, m),
             None => view,
         });
+        bar.step(1);
     }
+    bar.finish();
     Ok((views, warnings))
 }
 

@@ -488,7 +488,7 @@ fn read_working_views(
             Some(m) => given(m),
             None => auto(&frames.iter().map(|f| f.camera.clone()).collect::<Vec<_>>())?,
         };
-        let (v, w) = colmap_views(frames, limit).with_context(context)?;
+        let (v, w) = colmap_views(frames, limit, s.progress.as_ref()).with_context(context)?;
         (v, w, limit, sizes, j)
     } else {
         let frames = opal_inverse::delight::views::read_frames(&a.views)
@@ -498,7 +498,7 @@ fn read_working_views(
             Some(m) => given(m),
             None => auto(&frames.iter().map(|f| opal::camera::Camera::new(&f.sensor)).collect::<Vec<_>>())?,
         };
-        let (v, w) = read_views_limited(&a.views, limit)
+        let (v, w) = read_views_limited(&a.views, limit, s.progress.as_ref())
             .with_context(|| format!("cannot read the views {}", a.views.display()))?;
         (v, w, limit, sizes, j)
     };

@@ -11,7 +11,6 @@
 
 use crate::delight::atlas::NO_TRI;
 use crate::delight::direct::direct_irradiance_many;
-use crate::delight::progress::Stage;
 use crate::delight::{DelightSettings, ObjectResult};
 use opal::scene::Scene;
 
@@ -24,18 +23,15 @@ pub(in crate::delight) fn direct_stage(
 ) -> [f32; 3] {
     let solo = opal::dist::Solo;
     let comm: &dyn opal::dist::Comm = s.comm.as_deref().unwrap_or(&solo);
-    let texels: usize = objects.iter().map(|o| o.atlas.width * o.atlas.height).sum();
-    let bar = Stage::start(s.progress.as_ref(), "direct", texels as u64);
-    // all objects in one split (object j seeded with its own stream)
+    // all objects in one split (object j seeded with its own stream); progress (stages `direct`
+    // and `direct penumbrae`) in texels as they finish inside the split
     let atlases: Vec<&crate::delight::atlas::Atlas> = objects.iter().map(|o| &o.atlas).collect();
     let streams: Vec<u64> = (0..objects.len()).map(|j| 0xED00 + j as u64).collect();
     let samples = (s.direct_samples, s.direct_pilot);
-    let maps = direct_irradiance_many(scene, &atlases, samples, s.seed, &streams, comm);
+    let maps = direct_irradiance_many(scene, &atlases, samples, s.seed, &streams, comm, s.progress.as_ref());
     for (o, ed) in objects.iter_mut().zip(maps) {
         o.ed = ed;
     }
-    bar.step(texels as u64);
-    bar.finish();
     scene_average(objects)
 }
 

@@ -128,7 +128,7 @@ pub fn superres_luminance(
     let (sh, sh_mean) =
         if shading.is_some() { shading_per_unknown(&sd_t, &texel_of) } else { (vec![1f32; m], 1f64) };
     let (rs, row_noise_per_rel2) = row_weights(&rows, (init, init_obs), mean, scale, shading.is_some());
-    let (amat, y) = weighted_operator(rows, &shade, &rs, &idx, sh_mean, scale, m);
+    let (amat, y) = weighted_operator(rows, shade, &rs, &idx, sh_mean, scale, m);
     let nrows = amat.rows();
     let sys = solve::System::new(amat, &y, prior_edges(a, &idx));
     drop(y);
@@ -222,7 +222,10 @@ fn all_rows(
     pure: &[PureBuffer],
     s: &SrSettings,
 ) -> Vec<Row> {
-    let mut rows: Vec<Row> = Vec::new();
+    // at most one row per pixel the object covers: reserved once (growing the vector by
+    // doubling would hold up to twice the rows' headers while it moves them)
+    let covered: usize = pure.iter().map(|p| p.covered.iter().filter(|&&k| k == shape).count()).sum();
+    let mut rows: Vec<Row> = Vec::with_capacity(covered);
     for (v, pb) in views.iter().zip(pure) {
         let mut vr = operator::view_rows(scene, shape, a, v, pb, s.subsamples.max(1));
         let gen_ss = s.diagnostics.synth_subsamples;
@@ -258,7 +261,7 @@ fn unknowns(rows: &[Row], n: usize) -> (Vec<f32>, Vec<u32>, Vec<usize>) {
 /// each entry × the tap-weighted shading behind it (over its mean `sh_mean`) × the row weight.
 fn weighted_operator(
     rows: Vec<Row>,
-    shade: &[Vec<f32>],
+    shade: Vec<Vec<f32>>,
     rs: &[f32],
     idx: &[u32],
     sh_mean: f64,
@@ -267,11 +270,13 @@ fn weighted_operator(
 ) -> (Csr, Vec<[f32; 3]>) {
     let mut ptr = Vec::with_capacity(rows.len() + 1);
     ptr.push(0);
-    let mut col = Vec::new();
-    let mut val = Vec::new();
+    let nnz: usize = rows.iter().map(|r| r.entries.len()).sum();
+    let mut col = Vec::with_capacity(nnz);
+    let mut val = Vec::with_capacity(nnz);
     let mut y = Vec::with_capacity(rows.len());
-    for ((r, sr), &w) in rows.iter().zip(shade).zip(rs) {
-        for (&(c, v), &st) in r.entries.iter().zip(sr) {
+    // each row is dropped once copied
+    for ((r, sr), &w) in rows.into_iter().zip(shade).zip(rs) {
+        for (&(c, v), &st) in r.entries.iter().zip(&sr) {
             // st: the tap-weighted shading of the texels behind this column (its own, and the
             // gutters tied to it); the floor as for `sh`
             let j = idx[c as usize];

@@ -96,6 +96,8 @@ pub(super) fn view_rows(
         .into_par_iter()
         .flat_map_iter(|py| {
             let mut rows = Vec::new();
+            // the taps of one pixel (S² rays × 4), reused from pixel to pixel of the line
+            let mut e: Vec<(u32, f32)> = Vec::with_capacity(4 * (ss * ss) as usize);
             'pix: for px in 0..cam.width {
                 let k = py * cam.width + px;
                 if pure.covered[k] != shape {
@@ -105,7 +107,7 @@ pub(super) fn view_rows(
                 if !yv.is_finite() {
                     continue;
                 }
-                let mut e: Vec<(u32, f32)> = Vec::with_capacity(4 * (ss * ss) as usize);
+                e.clear();
                 for sy in 0..ss {
                     for sx in 0..ss {
                         let c = Vec2::new(
@@ -141,17 +143,25 @@ pub(super) fn view_rows(
                         }
                     }
                 }
-                e.sort_unstable_by_key(|&(c, _)| c);
-                let mut merged: Vec<(u32, f32)> = Vec::with_capacity(e.len());
-                for (c, v) in e {
-                    match merged.last_mut() {
-                        Some(l) if l.0 == c => l.1 += v,
-                        _ => merged.push((c, v)),
-                    }
-                }
-                rows.push(Row { entries: merged, y: yv.0, pix: k as u32 });
+                rows.push(Row { entries: merge_taps(&mut e), y: yv.0, pix: k as u32 });
             }
             rows
         })
         .collect()
+}
+
+/// The taps `e` sorted by texel with the weights of a texel summed (in the order of `e`), in a
+/// vector of exactly their length: a row is held until the operator is built, and its merged
+/// taps (about a dozen for 4 × 4 rays) are a fraction of the S² × 4 unmerged ones.
+fn merge_taps(e: &mut [(u32, f32)]) -> Vec<(u32, f32)> {
+    e.sort_unstable_by_key(|&(c, _)| c);
+    let unique = 1 + e.windows(2).filter(|p| p[0].0 != p[1].0).count();
+    let mut merged: Vec<(u32, f32)> = Vec::with_capacity(if e.is_empty() { 0 } else { unique });
+    for &(c, v) in e.iter() {
+        match merged.last_mut() {
+            Some(l) if l.0 == c => l.1 += v,
+            _ => merged.push((c, v)),
+        }
+    }
+    merged
 }
