@@ -150,7 +150,7 @@ pub(super) fn starts(
     let mut scalar = 0u32;
     for (l, i) in range.enumerate() {
         let mut rng = stream.rng(i);
-        let (li, pmf, _) = sampler.sample(rng.next_f32());
+        let (li, pmf) = sampler.choose(rng.next_f32());
         let Some(row) = &lights[li] else {
             if let Some(st) = start_path(scene, sampler, stream.rng(i)) {
                 for c in 0..3 {

@@ -503,7 +503,12 @@ impl Wavefront {
                     }
                 }
             }
-            for (ln, hits) in lns.iter_mut().zip(&all_hits) {
+            // Two rounds over the sets: first the vertices (deposits, scattering, bitmap
+            // prefetches), then the early roulette and the refills, so that a bitmap lookup of
+            // the early roulette finds its texels prefetched while the other sets were scattered.
+            // Same draws per path, same refill order (set by set, lane by lane): same paths.
+            let mut alive_of = [0u32; SETS];
+            for ((ln, hits), alive_out) in lns.iter_mut().zip(&all_hits).zip(&mut alive_of) {
                 if ln.active == 0 {
                     continue;
                 }
@@ -565,6 +570,13 @@ impl Wavefront {
                     }
                 }
                 ln.pending = alive;
+                *alive_out = alive;
+            }
+            for (ln, &alive) in lns.iter_mut().zip(&alive_of) {
+                if ln.active == 0 {
+                    continue;
+                }
+                let mut alive = alive;
                 if s.rr_depth >= 0 {
                     // Lanes whose next vertex faces the roulette settle their pending weight and
                     // draw the roulette now, before their ray is traced: a path the roulette ends
