@@ -247,7 +247,7 @@ fn light_lanes(rows: &[LightRow], row_of: &[usize; W], inp: &mut StartIn) {
         st(&mut inp.n_off[ch], L_N_OFF + ch);
         st(&mut inp.le[ch], L_LE + ch);
     }
-    for l in 0..W {
-        inp.inv_area[l] = r[l][L_INV_AREA];
+    for (a, r) in inp.inv_area.iter_mut().zip(r) {
+        *a = r[L_INV_AREA];
     }
 }
