@@ -10,10 +10,6 @@
 //! built ([`PacketAccel::avx512`]); its scalar original is [`super::BruteForce`] (as for the
 //! AVX2 kernel), which also takes the lanes with an exactly-zero edge function.
 
-// The AVX-512 intrinsics (and the `avx512*` target features, which `gonio/fast.rs` enables
-// too) are stable since Rust 1.89, above the workspace's declared `rust-version`.
-#![clippy::msrv = "1.89"]
-
 use super::{GROUP, PACKET, PacketAccel, PacketHits, RayPacket};
 use std::arch::x86_64::*;
 use std::mem::MaybeUninit;

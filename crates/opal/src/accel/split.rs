@@ -203,30 +203,13 @@ impl SplitAccel {
     /// mostly run with one or two lanes and hide little of its memory latency.
     pub fn intersect8_many(&self, rays: &[RayPacket], hits: &mut [PacketHits]) {
         assert_eq!(rays.len(), hits.len(), "one hit record per packet");
-        // the big triangles first, two packets per call where the 16-lane kernel runs
-        let mut j = 0;
-        #[cfg(target_arch = "x86_64")]
-        if self.packet.avx512() {
-            while j + 1 < rays.len() {
-                if rays[j].any_active() || rays[j + 1].any_active() {
-                    // SAFETY: the CPU supports AVX-512 (detected when the structure was built).
-                    [hits[j], hits[j + 1]] =
-                        unsafe { self.packet.intersect16_avx512(&rays[j], &rays[j + 1]) };
-                }
-                j += 2;
-            }
-        }
-        for j in j..rays.len() {
-            if rays[j].any_active() {
-                hits[j] = self.packet.intersect_lanes(&rays[j]);
-            }
-        }
         let mut queue = Gather::default();
         for j in 0..rays.len() {
             if !rays[j].any_active() {
                 hits[j] = PacketHits::NONE;
                 continue;
             }
+            hits[j] = self.packet.intersect_lanes(&rays[j]);
             let mut below = rays[j];
             for l in 0..PACKET {
                 if hits[j].prim[l] >= 0 {
