@@ -2,8 +2,9 @@
 //! the same IEEE operations in the same order as the scalar code they mirror (named on each
 //! function), hence the same bits.
 //!
-//! Tests (`tests.rs`): `simd_generators_draw_the_scalar_numbers`, and the identical sums of the
-//! wavefront and the one-path-at-a-time engine.
+//! Tests (`tests.rs`): `simd_generators_draw_the_scalar_numbers`,
+//! `simd_seeding_gives_the_scalar_generators`, and the identical sums of the wavefront and the
+//! one-path-at-a-time engine.
 
 use super::starts::{StartIn, StartOut, start_lanes};
 use super::wavefront::{

@@ -1,7 +1,10 @@
-//! Path starts prepared [`W`] at a time for the wavefront ([`starts`]): triangle lights in
-//! SIMD ([`start_lanes`], the same bits as [`start_path`]), other lights through `start_path`.
+//! Path starts prepared [`W`] at a time for the wavefront ([`starts`]): the generators seeded
+//! and their first numbers drawn in SIMD, triangle lights read as rows ([`LightRow`], 8×8
+//! transposes) into [`start_lanes`] (the same bits as [`start_path`]), other lights through
+//! `start_path`.
 //!
-//! Tests (`tests.rs`): the engine comparison (area and point lights) gives identical sums.
+//! Tests (`tests.rs`): the engine comparison (area and point lights) gives identical sums;
+//! `simd_seeding_gives_the_scalar_generators`.
 
 #[cfg(target_arch = "x86_64")]
 use super::avx;
