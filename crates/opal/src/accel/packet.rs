@@ -76,6 +76,13 @@ impl RayPacket {
     }
 }
 
+// The AVX-512 intrinsics (and the `avx512*` target features, which `gonio/fast.rs` enables
+// too) are stable since Rust 1.89, above the workspace's declared `rust-version`.
+#[cfg(target_arch = "x86_64")]
+#[clippy::msrv = "1.89"]
+#[path = "packet_avx512.rs"]
+mod avx512;
+
 /// A triangle corner padded to 16 bytes (one 128-bit load).
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(16))]
@@ -168,6 +175,8 @@ pub struct PacketAccel {
     brute: BruteForce,
     /// AVX2 kernels ([`crate::simd::isa`], read when built).
     avx2: bool,
+    /// The 16-lane AVX-512 kernel (`packet_avx512.rs`; read when built).
+    avx512: bool,
 }
 
 impl PacketAccel {
@@ -199,7 +208,14 @@ impl PacketAccel {
                 .collect();
             groups.push(Group { verts, tris: ids, lo: lo.to_array(), hi: hi.to_array() });
         }
-        PacketAccel { len: tris.len(), groups, brute: BruteForce::new(tris), avx2: crate::simd::isa().avx2() }
+        let isa = crate::simd::isa();
+        PacketAccel {
+            len: tris.len(),
+            groups,
+            brute: BruteForce::new(tris),
+            avx2: isa.avx2(),
+            avx512: isa.avx512(),
+        }
     }
 
     /// Number of triangles.
@@ -482,11 +498,27 @@ mod tests {
     fn check(tris: Vec<[Vec3; 3]>, rays: &[Ray]) {
         let pa = PacketAccel::new(tris.clone());
         let bf = BruteForce::new(tris);
+        let mut prev = RayPacket::default();
         for chunk in rays.chunks(PACKET) {
             let mut p = RayPacket::default();
             for (l, r) in chunk.iter().enumerate() {
                 p.set(l, r);
             }
+            #[cfg(target_arch = "x86_64")]
+            if pa.avx512() {
+                // the 16-lane kernel: this packet beside the previous one, bit for bit
+                // SAFETY: AVX-512 and AVX2 detected (`avx512()`).
+                let got = unsafe { pa.intersect16_avx512(&prev, &p) };
+                for (g, q) in got.iter().zip([&prev, &p]) {
+                    let w = pa.intersect_lanes(q);
+                    let bits = |a: &[f32; PACKET]| a.map(f32::to_bits);
+                    assert_eq!(
+                        (bits(&g.t), bits(&g.b1), bits(&g.b2), g.prim),
+                        (bits(&w.t), bits(&w.b1), bits(&w.b2), w.prim)
+                    );
+                }
+            }
+            prev = p;
             let got = pa.intersect(&p);
             let blocked = pa.occluded_lanes(&p);
             for (l, r) in chunk.iter().enumerate() {

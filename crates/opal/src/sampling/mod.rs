@@ -44,6 +44,12 @@ impl RngStream {
     pub fn new(seed: u64, stream: u64) -> Self {
         RngStream { base: mix64(mix64(seed ^ 0x9e37_79b9_7f4a_7c15).wrapping_add(stream)) }
     }
+    /// The hash base: `rng(index)` is seeded from `mix64(base + index)` (for SIMD copies of
+    /// the seeding).
+    #[inline]
+    pub(crate) fn base(&self) -> u64 {
+        self.base
+    }
     /// The generator of work item `index` (= `Rng::new(seed, stream, index)`).
     #[inline]
     pub fn rng(&self, index: u64) -> Rng {
@@ -61,6 +67,8 @@ pub struct Rng {
 impl Rng {
     /// The PCG multiplier (also used by SIMD copies of the generator).
     pub(crate) const MULT: u64 = 6_364_136_223_846_793_005;
+    /// The key of the increment's hash in the seeding (also used by SIMD copies).
+    pub(crate) const INC_KEY: u64 = 0xda3e_39cb_94b9_5bdb;
 
     /// Generator for work item `index` of stream `stream` under `seed`.
     pub fn new(seed: u64, stream: u64, index: u64) -> Self {
@@ -69,7 +77,7 @@ impl Rng {
 
     #[inline]
     fn from_hash(h: u64) -> Self {
-        let mut r = Rng { state: 0, inc: (mix64(h ^ 0xda3e_39cb_94b9_5bdb) << 1) | 1 };
+        let mut r = Rng { state: 0, inc: (mix64(h ^ Self::INC_KEY) << 1) | 1 };
         r.next_u32();
         r.state = r.state.wrapping_add(h);
         r.next_u32();

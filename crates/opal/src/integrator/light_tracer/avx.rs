@@ -2,8 +2,9 @@
 //! the same IEEE operations in the same order as the scalar code they mirror (named on each
 //! function), hence the same bits.
 //!
-//! Tests (`tests.rs`): `simd_generators_draw_the_scalar_numbers`, and the identical sums of the
-//! wavefront and the one-path-at-a-time engine.
+//! Tests (`tests.rs`): `simd_generators_draw_the_scalar_numbers`,
+//! `simd_seeding_gives_the_scalar_generators`, and the identical sums of the wavefront and the
+//! one-path-at-a-time engine.
 
 use super::starts::{StartIn, StartOut, start_lanes};
 use super::wavefront::{
@@ -86,6 +87,57 @@ pub(super) fn next_f32_lanes(state: &mut [u64; W], inc: &[u64; W], m: u32) -> [f
     let mut r = [0.0; W];
     st(&mut r, f);
     r
+}
+
+/// The products modulo 2⁶⁴ of four 64-bit lanes by `c` (from three 32×32-bit products).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn mul64(x: __m256i, c: u64) -> __m256i {
+    let (c_lo, c_hi) = (_mm256_set1_epi64x(c as u32 as i64), _mm256_set1_epi64x((c >> 32) as i64));
+    let cross =
+        _mm256_add_epi64(_mm256_mul_epu32(_mm256_srli_epi64::<32>(x), c_lo), _mm256_mul_epu32(x, c_hi));
+    _mm256_add_epi64(_mm256_mul_epu32(x, c_lo), _mm256_slli_epi64::<32>(cross))
+}
+
+/// [`crate::sampling::mix64`] of four 64-bit lanes.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn mix64_lanes(z: __m256i) -> __m256i {
+    let z = mul64(_mm256_xor_si256(z, _mm256_srli_epi64::<30>(z)), 0xbf58_476d_1ce4_e5b9);
+    let z = mul64(_mm256_xor_si256(z, _mm256_srli_epi64::<27>(z)), 0x94d0_49bb_1331_11eb);
+    _mm256_xor_si256(z, _mm256_srli_epi64::<31>(z))
+}
+
+/// The generators `(state, inc)` of work items `first .. first + 8` of the stream whose
+/// [`RngStream::base`](crate::sampling::RngStream) is `base`: `RngStream::rng` (`mix64` of
+/// `base + index`, `Rng::from_hash`) with the same 64-bit arithmetic, hence the same
+/// generators.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn seed_lanes(base: u64, first: u64, state: &mut [u64; W], inc: &mut [u64; W]) {
+    let mult = crate::sampling::Rng::MULT;
+    for h in 0..2 {
+        let i0 = first.wrapping_add(4 * h as u64);
+        let index = _mm256_setr_epi64x(
+            i0 as i64,
+            i0.wrapping_add(1) as i64,
+            i0.wrapping_add(2) as i64,
+            i0.wrapping_add(3) as i64,
+        );
+        let hash = mix64_lanes(_mm256_add_epi64(_mm256_set1_epi64x(base as i64), index));
+        // inc = (mix64(hash ^ K) << 1) | 1; from state 0 one step gives inc, then + hash, a step
+        let k = _mm256_set1_epi64x(crate::sampling::Rng::INC_KEY as i64);
+        let i = _mm256_or_si256(
+            _mm256_slli_epi64::<1>(mix64_lanes(_mm256_xor_si256(hash, k))),
+            _mm256_set1_epi64x(1),
+        );
+        let s = _mm256_add_epi64(mul64(_mm256_add_epi64(i, hash), mult), i);
+        // SAFETY: 4 u64 of an 8-u64 array, unaligned stores.
+        unsafe {
+            _mm256_storeu_si256(state.as_mut_ptr().add(4 * h).cast(), s);
+            _mm256_storeu_si256(inc.as_mut_ptr().add(4 * h).cast(), i);
+        }
+    }
 }
 
 /// `vertex`'s pending weights `w = kd_pi · ratio` (`Spectrum * f32`) of the lanes in `pend`:

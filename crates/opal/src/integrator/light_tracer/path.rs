@@ -51,7 +51,7 @@ pub(super) fn start_path<'a>(
     sampler: &crate::light::LightSampler,
     mut rng: Rng,
 ) -> Option<PathState<'a>> {
-    let (li, pmf, _) = sampler.sample(rng.next_f32());
+    let (li, pmf) = sampler.choose(rng.next_f32());
     let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
     let es = scene.lights[li].sample_le(u_pos, u_dir)?;
     if pmf <= 0.0 || es.pdf_pos <= 0.0 || es.pdf_dir <= 0.0 {

@@ -1,7 +1,10 @@
-//! Path starts prepared [`W`] at a time for the wavefront ([`starts`]): triangle lights in
-//! SIMD ([`start_lanes`], the same bits as [`start_path`]), other lights through `start_path`.
+//! Path starts prepared [`W`] at a time for the wavefront ([`starts`]): the generators seeded
+//! and their first numbers drawn in SIMD, triangle lights read as rows ([`LightRow`], 8×8
+//! transposes) into [`start_lanes`] (the same bits as [`start_path`]), other lights through
+//! `start_path`.
 //!
-//! Tests (`tests.rs`): the engine comparison (area and point lights) gives identical sums.
+//! Tests (`tests.rs`): the engine comparison (area and point lights) gives identical sums;
+//! `simd_seeding_gives_the_scalar_generators`.
 
 #[cfg(target_arch = "x86_64")]
 use super::avx;
@@ -10,40 +13,58 @@ use super::path::start_path;
 use super::wavefront::{W, cosine_hemisphere_lanes, each3, offset_lanes};
 #[cfg(target_arch = "x86_64")]
 use super::wavefront::{lanes_of, mask};
-use crate::math::{Frame, Vec3};
 use crate::sampling::{Rng, RngStream};
 use crate::scene::Scene;
-use crate::spectrum::Spectrum;
 
-/// Triangle lights as the SIMD path starts need them, one entry per light (`None` for other
-/// lights, whose paths start through [`start_path`]).
+/// Offsets in a [`LightRow`]: the corners `p[k][c]` at `L_P + 3k + c`, then three floats each
+/// for the frame's `s` and `t`, the normal, its `normalize_or_zero` (the ray offset's
+/// direction) and the radiance, then `1 / area`.
+const L_P: usize = 0;
+const L_S: usize = 9;
+const L_T: usize = 12;
+const L_N: usize = 15;
+const L_N_OFF: usize = 18;
+const L_LE: usize = 21;
+const L_INV_AREA: usize = 24;
+
+/// A triangle light as the SIMD path starts need it: 32 floats (fields: the `L_*` offsets), so
+/// that eight lanes' lights are read with 8×8 transposes ([`light_lanes`]).
 #[derive(Clone, Copy)]
-pub(super) struct LightRow {
-    p: [Vec3; 3],
-    frame: Frame,
-    /// The light's normal and its `normalize_or_zero` (the ray offset's direction).
-    n: Vec3,
-    n_off: Vec3,
-    radiance: Spectrum,
-    inv_area: f32,
+#[repr(C, align(64))]
+pub(super) struct LightRow([f32; 32]);
+
+/// The scene's lights for the path starts: one [`LightRow`] per light (zeros for lights that
+/// are not triangles, whose paths start through [`start_path`]) and a zero row at the end.
+pub(super) struct LightRows {
+    rows: Vec<LightRow>,
+    triangle: Vec<bool>,
 }
 
-pub(super) fn light_rows(scene: &Scene) -> Vec<Option<LightRow>> {
-    scene
-        .lights
-        .iter()
-        .map(|l| match l {
-            crate::light::Light::Triangle(t) => Some(LightRow {
-                p: t.p,
-                frame: *t.frame(),
-                n: t.n,
-                n_off: t.n.normalize_or_zero(),
-                radiance: t.radiance,
-                inv_area: t.inv_area(),
-            }),
-            _ => None,
-        })
-        .collect()
+pub(super) fn light_rows(scene: &Scene) -> LightRows {
+    let mut rows = Vec::with_capacity(scene.lights.len() + 1);
+    let mut triangle = Vec::with_capacity(scene.lights.len());
+    for l in &scene.lights {
+        let mut r = [0.0f32; 32];
+        if let crate::light::Light::Triangle(t) = l {
+            let f = t.frame();
+            let n_off = t.n.normalize_or_zero();
+            for c in 0..3 {
+                for k in 0..3 {
+                    r[L_P + 3 * k + c] = t.p[k][c];
+                }
+                r[L_S + c] = f.s[c];
+                r[L_T + c] = f.t[c];
+                r[L_N + c] = t.n[c];
+                r[L_N_OFF + c] = n_off[c];
+                r[L_LE + c] = t.radiance[c];
+            }
+            r[L_INV_AREA] = t.inv_area();
+        }
+        rows.push(LightRow(r));
+        triangle.push(matches!(l, crate::light::Light::Triangle(_)));
+    }
+    rows.push(LightRow([0.0; 32]));
+    LightRows { rows, triangle }
 }
 
 /// Inputs of [`start_lanes`]: per lane the chosen light's data and the position and direction
@@ -133,25 +154,35 @@ impl StartBlock {
 }
 
 /// The path starts of the indices `range` (at most [`W`]), in order, into `out`; lane `l` is
-/// valid where [`start_path`] gives a path (same paths, same bits: triangle lights through
-/// [`start_lanes`], other lights through `start_path` itself).
+/// valid where [`start_path`] gives a path (same paths, same bits: the generators seeded and
+/// their first five numbers drawn eight at a time ([`avx::seed_lanes`], [`avx::next_f32_lanes`]),
+/// triangle lights through [`start_lanes`], other lights through `start_path` itself).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 pub(super) fn starts(
     scene: &Scene,
     sampler: &crate::light::LightSampler,
-    lights: &[Option<LightRow>],
+    lights: &LightRows,
     stream: &RngStream,
     range: std::ops::Range<u64>,
     out: &mut StartBlock,
 ) {
+    let (mut state, mut inc) = ([0u64; W], [0u64; W]);
+    avx::seed_lanes(stream.base(), range.start, &mut state, &mut inc);
+    // `start_path`'s draws: the light choice, then `u_pos` and `u_dir` (x before y)
+    let all = (1u32 << W) - 1;
+    let u_light = avx::next_f32_lanes(&mut state, &inc, all);
     let mut inp = StartIn::default();
+    for u in inp.u_pos.iter_mut().chain(inp.u_dir.iter_mut()) {
+        *u = avx::next_f32_lanes(&mut state, &inc, all);
+    }
     let mut simd = 0u32;
     let mut scalar = 0u32;
+    // lanes without a triangle light read the zero row (their kernel output is not used)
+    let mut row_of = [lights.rows.len() - 1; W];
     for (l, i) in range.enumerate() {
-        let mut rng = stream.rng(i);
-        let (li, pmf, _) = sampler.sample(rng.next_f32());
-        let Some(row) = &lights[li] else {
+        let (li, pmf) = sampler.choose(u_light[l]);
+        if !lights.triangle[li] {
             if let Some(st) = start_path(scene, sampler, stream.rng(i)) {
                 for c in 0..3 {
                     out.o[c][l] = st.ray.o[c];
@@ -162,27 +193,13 @@ pub(super) fn starts(
                 scalar |= 1 << l;
             }
             continue;
-        };
-        let (u_pos, u_dir) = (rng.next_2d(), rng.next_2d());
-        for c in 0..3 {
-            for k in 0..3 {
-                inp.p[k][c][l] = row.p[k][c];
-            }
-            inp.s[c][l] = row.frame.s[c];
-            inp.t[c][l] = row.frame.t[c];
-            inp.n[c][l] = row.n[c];
-            inp.n_off[c][l] = row.n_off[c];
-            inp.le[c][l] = row.radiance[c];
         }
-        inp.inv_area[l] = row.inv_area;
+        row_of[l] = li;
         inp.pmf[l] = pmf;
-        inp.u_pos[0][l] = u_pos.x;
-        inp.u_pos[1][l] = u_pos.y;
-        inp.u_dir[0][l] = u_dir.x;
-        inp.u_dir[1][l] = u_dir.y;
-        out.rng[l] = rng;
+        out.rng[l] = Rng { state: state[l], inc: inc[l] };
         simd |= 1 << l;
     }
+    light_lanes(&lights.rows, &row_of, &mut inp);
     let o = avx::start_kernel(&inp);
     let valid = simd & mask(|l| o.valid[l] != 0);
     for l in lanes_of(valid) {
@@ -193,4 +210,47 @@ pub(super) fn starts(
         }
     }
     out.valid = valid | scalar;
+}
+
+/// The lights `rows[row_of[l]]` of the eight lanes into `inp` (three 8×8 transposes of the
+/// rows' first 24 floats, `1 / area` per lane).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn light_lanes(rows: &[LightRow], row_of: &[usize; W], inp: &mut StartIn) {
+    use std::arch::x86_64::*;
+    let r: [&[f32; 32]; W] = std::array::from_fn(|l| &rows[row_of[l]].0);
+    // SAFETY: floats 8h..8h + 8 (h < 3) of a 32-float row, unaligned loads.
+    let chunk = |h: usize| -> [__m256; 8] {
+        std::array::from_fn(|l| unsafe { _mm256_loadu_ps(r[l].as_ptr().add(8 * h)) })
+    };
+    let (a, b, c) = (
+        crate::simd::transpose8(chunk(0)),
+        crate::simd::transpose8(chunk(1)),
+        crate::simd::transpose8(chunk(2)),
+    );
+    let field = |k: usize| {
+        if k < 8 {
+            a[k]
+        } else if k < 16 {
+            b[k - 8]
+        } else {
+            c[k - 16]
+        }
+    };
+    // SAFETY: 8 floats, unaligned store.
+    let st = |d: &mut [f32; W], k: usize| unsafe { _mm256_storeu_ps(d.as_mut_ptr(), field(k)) };
+    for ch in 0..3 {
+        for k in 0..3 {
+            st(&mut inp.p[k][ch], L_P + 3 * k + ch);
+        }
+        st(&mut inp.s[ch], L_S + ch);
+        st(&mut inp.t[ch], L_T + ch);
+        st(&mut inp.n[ch], L_N + ch);
+        st(&mut inp.n_off[ch], L_N_OFF + ch);
+        st(&mut inp.le[ch], L_LE + ch);
+    }
+    for (a, r) in inp.inv_area.iter_mut().zip(r) {
+        *a = r[L_INV_AREA];
+    }
 }

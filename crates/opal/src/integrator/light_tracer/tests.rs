@@ -433,6 +433,30 @@ fn simd_generators_draw_the_scalar_numbers() {
 }
 
 #[test]
+fn simd_seeding_gives_the_scalar_generators() {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        let mut pick = Rng::new(6, 6, 6);
+        for k in 0..200u64 {
+            let stream = RngStream::new(k, pick.next_u32() as u64);
+            // first indices: small, random and wrapping past 2⁶⁴
+            let first = match k % 3 {
+                0 => k,
+                1 => ((pick.next_u32() as u64) << 32) | pick.next_u32() as u64,
+                _ => u64::MAX - (k % 9),
+            };
+            let (mut state, mut inc) = ([0u64; W], [0u64; W]);
+            // SAFETY: the CPU supports AVX2 (checked above).
+            unsafe { avx::seed_lanes(stream.base(), first, &mut state, &mut inc) };
+            for l in 0..W {
+                let r = stream.rng(first.wrapping_add(l as u64));
+                assert_eq!((state[l], inc[l]), (r.state, r.inc), "stream {k}, lane {l}");
+            }
+        }
+    }
+}
+
+#[test]
 fn i32_cells_with_spill_sum_exactly_like_i64() {
     // Random deposits into a few texels, including values that overflow a cell after a few
     // additions and values beyond i32: the cell + spill sums equal plain i64 sums.

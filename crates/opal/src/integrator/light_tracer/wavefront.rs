@@ -16,7 +16,7 @@ use super::path::{PathCtx, survival, trace_path};
 use super::prims::{Mat, Prim};
 #[cfg(target_arch = "x86_64")]
 use super::starts::starts;
-use super::starts::{LightRow, StartBlock, light_rows};
+use super::starts::{LightRows, StartBlock, light_rows};
 use crate::accel::Accel;
 #[cfg(target_arch = "x86_64")]
 use crate::accel::packet::PacketHits;
@@ -34,6 +34,8 @@ pub(super) const W: usize = 8;
 /// ([`Accel::intersect8_many`]), so that a split structure fills its BVH streams with the rays
 /// of all sets that enter it (on an object in a room about one in six per set).
 const SETS: usize = 4;
+// (sets go in pairs to the 16-lane packet kernel)
+const _: () = assert!(SETS % 2 == 0);
 
 /// Inputs of the Lambertian scattering of [`W`] vertices, one per lane (structure of arrays),
 /// besides the rays that reached them.
@@ -224,7 +226,7 @@ pub(super) struct LambertTable<'a> {
     /// `3·w·h` in i32); otherwise every deposit takes [`deposit`].
     vector_deposits: bool,
     /// The scene's lights as the path starts need them ([`light_rows`]).
-    lights: Vec<Option<LightRow>>,
+    lights: LightRows,
 }
 
 impl<'a> LambertTable<'a> {
@@ -485,6 +487,16 @@ impl Wavefront {
             }
             match accel {
                 // (inlined into this AVX2 function)
+                // two sets per call where AVX-512 was detected (the same hits, half the work
+                // per ray: `accel/packet_avx512.rs`)
+                Some(Accel::Tiny { packet, .. }) if packet.avx512() => {
+                    for (h, ln) in all_hits.chunks_exact_mut(2).zip(lns.chunks_exact(2)) {
+                        if ln[0].active | ln[1].active != 0 {
+                            // SAFETY: the CPU supports AVX-512 (detected when `packet` was built).
+                            [h[0], h[1]] = unsafe { packet.intersect16_avx512(&ln[0].rays, &ln[1].rays) };
+                        }
+                    }
+                }
                 Some(Accel::Tiny { packet, .. }) => {
                     for (h, ln) in all_hits.iter_mut().zip(&lns) {
                         if ln.active != 0 {
@@ -503,7 +515,12 @@ impl Wavefront {
                     }
                 }
             }
-            for (ln, hits) in lns.iter_mut().zip(&all_hits) {
+            // Two rounds over the sets: first the vertices (deposits, scattering, bitmap
+            // prefetches), then the early roulette and the refills, so that a bitmap lookup of
+            // the early roulette finds its texels prefetched while the other sets were scattered.
+            // Same draws per path, same refill order (set by set, lane by lane): same paths.
+            let mut alive_of = [0u32; SETS];
+            for ((ln, hits), alive_out) in lns.iter_mut().zip(&all_hits).zip(&mut alive_of) {
                 if ln.active == 0 {
                     continue;
                 }
@@ -565,6 +582,13 @@ impl Wavefront {
                     }
                 }
                 ln.pending = alive;
+                *alive_out = alive;
+            }
+            for (ln, &alive) in lns.iter_mut().zip(&alive_of) {
+                if ln.active == 0 {
+                    continue;
+                }
+                let mut alive = alive;
                 if s.rr_depth >= 0 {
                     // Lanes whose next vertex faces the roulette settle their pending weight and
                     // draw the roulette now, before their ray is traced: a path the roulette ends
