@@ -217,14 +217,18 @@ pub(super) fn render_row(
 ) {
     match kernel {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `Kernel::detect` returns Avx2 only when the CPU has AVX2 and FMA
+        // SAFETY: `Kernel::detect` returns Avx2 only when the CPU has AVX2, FMA, POPCNT,
+        // BMI1, BMI2 and LZCNT (`crate::simd::Isa::Avx2`)
         Kernel::Avx2 => unsafe { render_row_avx2(scene, tables, cam, y, s, row) },
         _ => render_row_lanes(scene, tables, cam, y, s, row, kernel),
     }
 }
 
+/// The row compiled for AVX2, with the bit instructions of every AVX2 CPU
+/// ([`crate::simd::Isa::Avx2`]): the light choice's count of cdf entries below `u` and the
+/// shadow masks' counts become one `popcnt` each (a dozen shifts and masks without it).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2,fma,popcnt,bmi1,bmi2,lzcnt")]
 fn render_row_avx2(scene: &Scene, tables: &Tables, cam: usize, y: usize, s: &PathSettings, row: &mut Row) {
     render_row_lanes(scene, tables, cam, y, s, row, Kernel::Avx2)
 }
