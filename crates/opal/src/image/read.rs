@@ -242,8 +242,10 @@ mod tests {
         xs.extend((0..10_000).map(|_| rng.next_f32() * 1.2 - 0.1));
         xs.extend([f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.0, 1e-40, u32::MAX as f32]);
         xs.extend((0..=255).map(|k| k as f32 / 255.0));
-        let mut data: Vec<Spectrum> = xs.chunks(3).map(|c| Spectrum::rgb(c[0], c[c.len() / 2], c[c.len() - 1])).collect();
-        let expected: Vec<[u32; 3]> = data.iter().map(|v| v.map(srgb_to_linear).0.map(f32::to_bits)).collect();
+        let mut data: Vec<Spectrum> =
+            xs.chunks(3).map(|c| Spectrum::rgb(c[0], c[c.len() / 2], c[c.len() - 1])).collect();
+        let expected: Vec<[u32; 3]> =
+            data.iter().map(|v| v.map(srgb_to_linear).0.map(f32::to_bits)).collect();
         srgb_to_linear_all(&mut data);
         let got: Vec<[u32; 3]> = data.iter().map(|v| v.0.map(f32::to_bits)).collect();
         assert_eq!(got, expected);
