@@ -254,7 +254,9 @@ pub fn read_ply(path: &Path) -> Result<TriangleMesh> {
 
     let mut mesh = TriangleMesh::default();
     let mut have_vertices = false;
-    let mut faces: Vec<(Vec<i64>, usize)> = Vec::new();
+    // every face's corner indices one after the other; per face: (start, corners, line)
+    let mut corners: Vec<i64> = Vec::new();
+    let mut faces: Vec<(usize, usize, usize)> = Vec::new();
     for el in &elements {
         if el.name == "vertex" {
             have_vertices = true;
@@ -270,6 +272,15 @@ pub fn read_ply(path: &Path) -> Result<TriangleMesh> {
                 .iter()
                 .find_map(|(a, b)| Some([find(a)?, find(b)?]));
             let mut vals = vec![0f64; el.props.len()];
+            // each row takes at least one byte of the file: a lying count reserves no more
+            let rows = el.count.min(bytes.len());
+            mesh.positions.reserve(rows);
+            if normals.is_some() {
+                mesh.normals.reserve(rows);
+            }
+            if uvs.is_some() {
+                mesh.uvs.reserve(rows);
+            }
             for vi in 0..el.count {
                 body.next_row()?;
                 for (k, p) in el.props.iter().enumerate() {
@@ -308,9 +319,10 @@ pub fn read_ply(path: &Path) -> Result<TriangleMesh> {
                     |p| matches!(p, Prop::List(n, _, _) if n == "vertex_indices" || n == "vertex_index"),
                 )
                 .ok_or_else(|| perr(path, 0, "face element lacks a vertex_indices/vertex_index list"))?;
+            faces.reserve(el.count.min(bytes.len()));
             for fi in 0..el.count {
                 body.next_row()?;
-                let mut idx = Vec::new();
+                let start = corners.len();
                 for (k, p) in el.props.iter().enumerate() {
                     match p {
                         Prop::Scalar(_, t) => {
@@ -321,21 +333,22 @@ pub fn read_ply(path: &Path) -> Result<TriangleMesh> {
                             for _ in 0..n {
                                 let v = body.read(*t)?;
                                 if k == li {
-                                    idx.push(v as i64);
+                                    corners.push(v as i64);
                                 }
                             }
                         }
                     }
                 }
                 body.end_row()?;
-                if idx.len() < 3 {
+                let n = corners.len() - start;
+                if n < 3 {
                     return Err(perr(
                         path,
                         body.line(),
-                        format!("face {fi} has {} vertices (needs ≥ 3){}", idx.len(), body.where_()),
+                        format!("face {fi} has {n} vertices (needs ≥ 3){}", body.where_()),
                     ));
                 }
-                faces.push((idx, body.line()));
+                faces.push((start, n, body.line()));
                 let _ = fi;
             }
         } else if el.props.is_empty() && body.fmt != Format::Ascii {
@@ -365,9 +378,11 @@ pub fn read_ply(path: &Path) -> Result<TriangleMesh> {
         return Err(perr(path, 0, "no vertex element"));
     }
     let nv = mesh.positions.len() as i64;
-    for (fi, (idx, line)) in faces.iter().enumerate() {
+    mesh.indices.reserve(faces.iter().map(|f| f.1 - 2).sum());
+    for (fi, &(start, n, line)) in faces.iter().enumerate() {
+        let idx = &corners[start..start + n];
         if let Some(&bad) = idx.iter().find(|&&i| i < 0 || i >= nv) {
-            return Err(perr(path, *line, format!("face {fi}: vertex index {bad} out of range (0..{nv})")));
+            return Err(perr(path, line, format!("face {fi}: vertex index {bad} out of range (0..{nv})")));
         }
         for k in 1..idx.len() - 1 {
             mesh.indices.push([idx[0] as u32, idx[k] as u32, idx[k + 1] as u32]);

@@ -22,7 +22,8 @@ pub use crate::fastmath::wide as lanes;
 pub enum Isa {
     /// AVX-512 (F, VL, DQ, BW) with AVX2 and FMA (x86-64): 16 lanes of f32 per instruction.
     Avx512,
-    /// AVX2 with FMA (x86-64): 8 lanes of f32 per instruction.
+    /// AVX2 with FMA (x86-64): 8 lanes of f32 per instruction; also the bit instructions
+    /// every AVX2 CPU has (POPCNT, BMI1, BMI2, LZCNT), which kernels may enable with it.
     Avx2,
     /// Portable lane loops (any CPU).
     Portable,
@@ -72,7 +73,7 @@ fn detect() -> Isa {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::is_x86_feature_detected as has;
-        if has!("avx2") && has!("fma") {
+        if has!("avx2") && has!("fma") && has!("popcnt") && has!("bmi1") && has!("bmi2") && has!("lzcnt") {
             if has!("avx512f") && has!("avx512vl") && has!("avx512dq") && has!("avx512bw") {
                 return Isa::Avx512;
             }

@@ -55,6 +55,7 @@ use rayon::prelude::*;
 mod wavefront;
 mod wide;
 mod wide_row;
+mod wide_tables;
 
 /// Path-tracer settings.
 #[derive(Clone, Copy, Debug)]
@@ -361,7 +362,7 @@ impl RowPlan {
     fn render(
         self,
         scene: &Scene,
-        tables: Option<&wide_row::Tables>,
+        tables: Option<&wide_tables::Tables>,
         cam: usize,
         y: usize,
         s: &PathSettings,
@@ -410,7 +411,7 @@ pub fn render_split(
     let camera = &scene.cameras[cam];
     let (w, h) = (camera.width, camera.height);
     let plan = RowPlan::choose(scene);
-    let tables = matches!(plan, RowPlan::Wide(_)).then(|| wide_row::Tables::new(scene));
+    let tables = matches!(plan, RowPlan::Wide(_)).then(|| wide_tables::Tables::new(scene));
     let mine: Vec<usize> = (0..h).filter(|&y| comm.owns(y as u64)).collect();
     let rows: Vec<Row> = mine
         .par_iter()

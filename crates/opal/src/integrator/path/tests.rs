@@ -28,7 +28,7 @@ fn plans(scene: &Scene) -> Vec<RowPlan> {
 /// Renders rows `ys` with the scalar loop and every wavefront plan and compares the bits.
 fn rows_agree(scene: &Scene, ys: &[usize], cases: &[(u32, i32, i32)]) {
     let w = scene.cameras[0].width;
-    let tables = wide_row::Tables::new(scene);
+    let tables = wide_tables::Tables::new(scene);
     for &(spp, max_depth, rr_depth) in cases {
         let s = PathSettings { spp, max_depth, rr_depth, hide_emitters: false, seed: 7 };
         let mut lit = false;

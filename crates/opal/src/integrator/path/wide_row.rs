@@ -11,7 +11,7 @@
 //!
 //! Per step: the lanes' rays are traced together ([`crate::accel::Accel::intersect8`]); each hit
 //! triangle's **row** (a 128-byte record built once per render: geometric normal, corner uvs,
-//! corner normals, shape, light, flags, constant albedo — [`Tables`]) is copied into the lanes,
+//! corner normals, shape, light, flags, constant albedo — [`super::wide_tables`]) is copied into the lanes,
 //! and the hit point, shading normal and uv are reconstructed for the eight lanes at once with
 //! the operations of [`Scene::interaction_at`]; bitmap texels are prefetched as soon as the uvs
 //! are known and looked up after the lanes' random numbers are drawn. Emitters found at a hit
@@ -35,123 +35,22 @@
 
 use super::wavefront::fill_inactive;
 use super::wide::{self, Kernel, V3, VertexIn, W};
+use super::wide_tables::{
+    F_CONST, F_NORMALS, F_TWO_SIDED, F_UVS, FIELDS, Gathered, NO_LIGHT, R_ALBEDO, R_FLAGS, R_LIGHT, R_N,
+    R_NG, R_SHAPE, R_UV, Tables, gather,
+};
 use super::{PathSettings, PathState, PixelSums, Row, emission};
 use crate::accel::packet::{PacketHits, RayPacket};
 use crate::geometry::Ray;
-use crate::light::Light;
 use crate::math::{Vec2, Vec3};
 use crate::sampling::Rng;
-use crate::scene::{Material, Scene, SurfaceInteraction};
+use crate::scene::{Scene, SurfaceInteraction};
 use crate::spectrum::Spectrum;
-use crate::texture::Texture;
 
 /// Sets of [`W`] lanes (pixels) advanced in step: their rays are traced in one call
 /// ([`crate::accel::Accel::intersect8_many`], shadow rays likewise), so that a split structure
 /// fills its BVH streams with the rays of all sets that enter it.
 const SETS: usize = 4;
-
-/// Floats per triangle row (128 bytes).
-const ROW: usize = 32;
-/// Geometric normal (3 floats).
-const R_NG: usize = 0;
-/// Corner uvs `u0 v0 u1 v1 u2 v2`.
-const R_UV: usize = 3;
-/// Corner normals `x0 y0 z0 x1 y1 z1 x2 y2 z2`.
-const R_N: usize = 9;
-/// Shape index (bits).
-const R_SHAPE: usize = 18;
-/// Light index (bits; [`NO_LIGHT`] for none).
-const R_LIGHT: usize = 19;
-/// `F_*` flags (bits).
-const R_FLAGS: usize = 20;
-/// Constant albedo (3 floats) when `F_CONST`.
-const R_ALBEDO: usize = 21;
-/// Fields copied into the lanes per hit.
-const FIELDS: usize = 24;
-
-const NO_LIGHT: u32 = u32::MAX;
-const F_NORMALS: u32 = 1;
-const F_TWO_SIDED: u32 = 2;
-const F_CONST: u32 = 4;
-const F_UVS: u32 = 8;
-
-/// Floats per light record: corners (9), unit normal (3), area, radiance (3).
-const LIGHT: usize = 16;
-
-#[repr(C, align(64))]
-#[derive(Clone, Copy)]
-struct TriRow([f32; ROW]);
-
-/// Per-triangle rows and per-light records of a scene, built once per render.
-pub(super) struct Tables<'a> {
-    rows: Vec<TriRow>,
-    lights: Vec<[f32; LIGHT]>,
-    /// Each shape's bitmap reflectance (`None` for constants, whose value is in the rows).
-    textures: Vec<Option<&'a Texture>>,
-}
-
-impl<'a> Tables<'a> {
-    /// The tables of an all-diffuse scene lit by triangles (see [`super::wavefront::wide_kernel`]).
-    pub(super) fn new(scene: &'a Scene) -> Tables<'a> {
-        let mut rows = Vec::new();
-        let mut textures = Vec::with_capacity(scene.shapes.len());
-        for (si, sh) in scene.shapes.iter().enumerate() {
-            let Material::Diffuse { reflectance, two_sided } = &sh.material else {
-                unreachable!("the wide row runs on diffuse scenes only")
-            };
-            let constant = match reflectance {
-                Texture::Constant(c) => Some(*c),
-                Texture::Bitmap(_) => None,
-            };
-            textures.push(constant.is_none().then_some(reflectance));
-            let m = &sh.mesh;
-            let mut flags = 0;
-            flags |= if m.normals.is_empty() { 0 } else { F_NORMALS };
-            flags |= if *two_sided { F_TWO_SIDED } else { 0 };
-            flags |= if constant.is_some() { F_CONST } else { 0 };
-            flags |= if m.uvs.is_empty() { 0 } else { F_UVS };
-            for (j, idx) in m.indices.iter().enumerate() {
-                let prim = sh.first_prim + j as u32;
-                let [i0, i1, i2] = idx.map(|i| i as usize);
-                let mut r = [0.0f32; ROW];
-                r[R_NG..R_NG + 3].copy_from_slice(&scene.prim_ng(prim).to_array());
-                if !m.uvs.is_empty() {
-                    for (c, i) in [i0, i1, i2].into_iter().enumerate() {
-                        r[R_UV + 2 * c..R_UV + 2 * c + 2].copy_from_slice(&m.uvs[i].to_array());
-                    }
-                }
-                if !m.normals.is_empty() {
-                    for (c, i) in [i0, i1, i2].into_iter().enumerate() {
-                        r[R_N + 3 * c..R_N + 3 * c + 3].copy_from_slice(&m.normals[i].to_array());
-                    }
-                }
-                r[R_SHAPE] = f32::from_bits(si as u32);
-                r[R_LIGHT] = f32::from_bits(scene.light_at(prim).map_or(NO_LIGHT, |(l, _)| l as u32));
-                r[R_FLAGS] = f32::from_bits(flags);
-                if let Some(c) = constant {
-                    r[R_ALBEDO..R_ALBEDO + 3].copy_from_slice(&c.0);
-                }
-                rows.push(TriRow(r));
-            }
-        }
-        let lights = scene
-            .lights
-            .iter()
-            .map(|l| {
-                let Light::Triangle(t) = l else { unreachable!("the wide row: triangle lights only") };
-                let mut r = [0.0f32; LIGHT];
-                for c in 0..3 {
-                    r[3 * c..3 * c + 3].copy_from_slice(&t.p[c].to_array());
-                }
-                r[9..12].copy_from_slice(&t.n.to_array());
-                r[12] = t.area;
-                r[13..16].copy_from_slice(&t.radiance.0);
-                r
-            })
-            .collect();
-        Tables { rows, lights, textures }
-    }
-}
 
 /// The pixel a lane renders.
 struct Pixel {
@@ -208,14 +107,18 @@ pub(super) fn render_row(
 ) {
     match kernel {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `Kernel::detect` returns Avx2 only when the CPU has AVX2 and FMA
+        // SAFETY: `Kernel::detect` returns Avx2 only when the CPU has AVX2, FMA, POPCNT,
+        // BMI1, BMI2 and LZCNT (`crate::simd::Isa::Avx2`)
         Kernel::Avx2 => unsafe { render_row_avx2(scene, tables, cam, y, s, row) },
         _ => render_row_lanes(scene, tables, cam, y, s, row, kernel),
     }
 }
 
+/// The row compiled for AVX2, with the bit instructions of every AVX2 CPU
+/// ([`crate::simd::Isa::Avx2`]): the light choice's count of cdf entries below `u` and the
+/// shadow masks' counts become one `popcnt` each (a dozen shifts and masks without it).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2,fma,popcnt,bmi1,bmi2,lzcnt")]
 fn render_row_avx2(scene: &Scene, tables: &Tables, cam: usize, y: usize, s: &PathSettings, row: &mut Row) {
     render_row_lanes(scene, tables, cam, y, s, row, Kernel::Avx2)
 }
@@ -289,6 +192,17 @@ fn render_row_lanes(
             inactive(&mut packets[j], alive[j]);
         }
         accel.intersect8_many(&packets, &mut hits);
+        // every set's hit rows, while the earlier sets are shaded (on big meshes, whose rows
+        // miss the caches: on the scanned-object room the copy of the rows was ≈ 7 % of the run)
+        if tables.prefetch {
+            for (h, alive) in hits.iter().zip(&alive) {
+                for k in 0..W {
+                    if alive[k] && h.prim[k] >= 0 {
+                        tables.prefetch_row(h.prim[k] as usize);
+                    }
+                }
+            }
+        }
         let mut ended = [[false; W]; SETS];
         for j in 0..SETS {
             shaded[j] = alive[j].contains(&true)
@@ -338,9 +252,6 @@ fn inactive(packet: &mut RayPacket, active: [bool; W]) {
         packet.tmax = [0.0; W];
     }
 }
-
-/// The hit lanes' rows, field by field.
-type Gathered = [[f32; W]; FIELDS];
 
 /// One step after the closest hits: hit reconstruction, emission, depth limit, the lanes'
 /// random numbers, light choices and texture lookups, the wide vertex and the Russian
@@ -476,47 +387,6 @@ fn step(
         lanes.beta.set(k, beta.0);
     }
     true
-}
-
-/// Copies the hit lanes' rows into `g` (field by field; other lanes keep their values, or get
-/// row 0's with AVX2).
-#[inline(always)]
-fn gather(tables: &Tables, hits: &PacketHits, hit: &[bool; W], g: &mut Gathered, kernel: Kernel) {
-    #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx2 {
-        let prim: [usize; W] = std::array::from_fn(|k| if hit[k] { hits.prim[k] as usize } else { 0 });
-        // SAFETY: Kernel::Avx2 only where the CPU has AVX2 (`Kernel::detect`).
-        unsafe { gather_avx2(&tables.rows, &prim, g) };
-        return;
-    }
-    let _ = kernel;
-    for k in 0..W {
-        if hit[k] {
-            let r = &tables.rows[hits.prim[k] as usize].0;
-            for f in 0..FIELDS {
-                g[f][k] = r[f];
-            }
-        }
-    }
-}
-
-/// The first [`FIELDS`] floats of rows `prim[0..8]`, transposed into `g` (three 8×8 blocks).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn gather_avx2(rows: &[TriRow], prim: &[usize; W], g: &mut Gathered) {
-    use std::arch::x86_64::*;
-    let r: [&TriRow; W] = std::array::from_fn(|k| &rows[prim[k]]);
-    for b in 0..FIELDS / 8 {
-        // SAFETY: each row holds ROW = 32 ≥ 8·3 floats; unaligned loads within it.
-        let block: [__m256; 8] =
-            std::array::from_fn(|k| unsafe { _mm256_loadu_ps(r[k].0.as_ptr().add(8 * b)) });
-        let t = crate::simd::transpose8(block);
-        for (f, v) in t.into_iter().enumerate() {
-            // SAFETY: `g[8b + f]` is an array of 8 floats.
-            unsafe { _mm256_storeu_ps(g[8 * b + f].as_mut_ptr(), v) };
-        }
-    }
 }
 
 /// The hit reconstruction of the eight lanes.

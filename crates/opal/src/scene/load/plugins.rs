@@ -23,7 +23,7 @@ use crate::geometry::shapes::{
     CYLINDER_SEGMENTS_PHI, DISK_SEGMENTS_PHI, DISK_SEGMENTS_R, SPHERE_SEGMENTS_PHI, SPHERE_SEGMENTS_THETA,
     cube_mesh, cylinder_mesh, disk_mesh, rectangle_mesh, sphere_mesh,
 };
-use crate::image::read::{read_image_decoded, srgb_to_linear};
+use crate::image::read::{read_image_decoded, srgb_to_linear_all};
 use crate::math::{DMat4, DVec3};
 use crate::scene::desc::*;
 use crate::spectrum::Spectrum;
@@ -321,9 +321,7 @@ impl Loader {
         let dec = read_image_decoded(&path).map_err(|err| floc.err(format!("bitmap texture: {err}")))?;
         let mut image = dec.image;
         if dec.srgb_encoded && !raw {
-            for v in &mut image.data {
-                *v = v.map(srgb_to_linear);
-            }
+            srgb_to_linear_all(&mut image.data);
         }
         if image.width == 0 || image.height == 0 {
             return Err(floc.err(format!("bitmap texture {}: empty image", path.display())));
