@@ -170,10 +170,10 @@ pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 pub fn ensure_not_input(output: &Path, inputs: &[&Path]) -> Result<()> {
     let out = std::fs::canonicalize(output).ok();
     for i in inputs {
-        if let (Some(o), Ok(i2)) = (&out, std::fs::canonicalize(i)) {
-            if *o == i2 {
-                bail!("refusing to overwrite the input file {}", i.display());
-            }
+        if let (Some(o), Ok(i2)) = (&out, std::fs::canonicalize(i))
+            && *o == i2
+        {
+            bail!("refusing to overwrite the input file {}", i.display());
         }
     }
     Ok(())

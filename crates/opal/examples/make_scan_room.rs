@@ -185,7 +185,7 @@ fn write_ply(path: &Path, m: &ScanMesh) -> std::io::Result<()> {
 fn write_texture(path: &Path) -> image::ImageResult<()> {
     let img = image::RgbImage::from_fn(TEX, TEX, |x, y| {
         let (u, v) = ((x as f32 + 0.5) / TEX as f32, (y as f32 + 0.5) / TEX as f32);
-        let check = ((u * 16.0) as u32 + (v * 8.0) as u32) % 2 == 0;
+        let check = ((u * 16.0) as u32 + (v * 8.0) as u32).is_multiple_of(2);
         let base = if check { Vec3::new(0.62, 0.55, 0.45) } else { Vec3::new(0.38, 0.40, 0.42) };
         // Periodic in u (noise on a circle) so the seam of the sphere does not show.
         let a = 2.0 * std::f32::consts::PI * u;

@@ -82,9 +82,10 @@ fn chi2_every_ndf_representative() {
     let n = (FAMILIES.len() * 2) as u32;
     for fam in FAMILIES {
         for theta in [0.3f32, 1.2] {
-            let side = if k % 2 == 0 { 1.0 } else { -1.0 };
-            let mode = if (k / 2) % 2 == 0 { TransportMode::Radiance } else { TransportMode::Importance };
-            let sh = if k % 3 == 0 { Shadowing::HeightCorrelated } else { Shadowing::Separable };
+            let side = if k.is_multiple_of(2) { 1.0 } else { -1.0 };
+            let mode =
+                if (k / 2).is_multiple_of(2) { TransportMode::Radiance } else { TransportMode::Importance };
+            let sh = if k.is_multiple_of(3) { Shadowing::HeightCorrelated } else { Shadowing::Separable };
             chi2_case(fam, 0.5, theta, side, mode, sh, n, 900 + k);
             k += 1;
         }

@@ -175,7 +175,7 @@ impl<'a> Ticker<'a> {
     /// One unit done; passes its value through.
     fn after<T>(&self, v: T) -> T {
         let d = self.done.fetch_add(1, Ordering::Relaxed) + 1;
-        if d % self.every == 0 {
+        if d.is_multiple_of(self.every) {
             self.stage.step(self.every);
         }
         v

@@ -77,9 +77,8 @@ impl RayPacket {
 }
 
 // The AVX-512 intrinsics (and the `avx512*` target features, which `gonio/fast.rs` enables
-// too) are stable since Rust 1.89, above the workspace's declared `rust-version`.
+// too) are stable since Rust 1.89, the workspace's `rust-version`.
 #[cfg(target_arch = "x86_64")]
-#[clippy::msrv = "1.89"]
 #[path = "packet_avx512.rs"]
 mod avx512;
 

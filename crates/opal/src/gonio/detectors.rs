@@ -110,13 +110,10 @@ impl Detectors {
                 format!("must be in (0°, 90°), got {}°", r.to_degrees()),
             ));
         }
-        if let Some(dist) = layout.distance_mm {
-            if !(dist.is_finite() && dist > 0.0) {
-                return Err(crate::Error::invalid(
-                    "detectors.distance_mm",
-                    format!("must be > 0, got {dist}"),
-                ));
-            }
+        if let Some(dist) = layout.distance_mm
+            && !(dist.is_finite() && dist > 0.0)
+        {
+            return Err(crate::Error::invalid("detectors.distance_mm", format!("must be > 0, got {dist}")));
         }
         let (ca, sa) = (azimuth.cos(), azimuth.sin());
         let mut list = Vec::new();

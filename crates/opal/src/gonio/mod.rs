@@ -302,10 +302,10 @@ pub fn validate_plate(p: &Plate) -> crate::Result<()> {
             format!("must be ≥ 0, got {}", p.absorption_per_mm),
         ));
     }
-    if let Some(r) = p.radius_mm {
-        if !(r.is_finite() && r > 0.0) {
-            return Err(crate::Error::invalid("radius_mm", format!("must be > 0, got {r}")));
-        }
+    if let Some(r) = p.radius_mm
+        && !(r.is_finite() && r > 0.0)
+    {
+        return Err(crate::Error::invalid("radius_mm", format!("must be > 0, got {r}")));
     }
     let rough = p.front.is_rough() || p.back.is_rough();
     if rough && (p.ior - 1.0).abs() < 1e-4 {

@@ -133,11 +133,11 @@ impl Scene {
                 degenerate += (c.length_squared() == 0.0) as usize;
                 prim_ng.push(c.normalize());
                 let mut light_idx = NO_LIGHT;
-                if let Some(le) = emission {
-                    if let Some(tl) = TriangleLight::new(tri, le, prim) {
-                        light_idx = lights.len() as u32;
-                        lights.push(Light::Triangle(tl));
-                    }
+                if let Some(le) = emission
+                    && let Some(tl) = TriangleLight::new(tri, le, prim)
+                {
+                    light_idx = lights.len() as u32;
+                    lights.push(Light::Triangle(tl));
                 }
                 prim_light.push(light_idx);
             }

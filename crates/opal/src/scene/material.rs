@@ -86,10 +86,10 @@ impl Material {
             }
             BsdfDesc::Lobe(b) => Ok(Material::Model { bxdf: b.clone(), two_sided }),
             BsdfDesc::Diffuse { reflectance } => {
-                if let TextureDesc::Constant(c) = reflectance {
-                    if !c.is_finite() || c.0.iter().any(|&v| v < 0.0) {
-                        return Err(Error::invalid(what(), format!("reflectance {:?}", c.0)));
-                    }
+                if let TextureDesc::Constant(c) = reflectance
+                    && (!c.is_finite() || c.0.iter().any(|&v| v < 0.0))
+                {
+                    return Err(Error::invalid(what(), format!("reflectance {:?}", c.0)));
                 }
                 Ok(Material::Diffuse { reflectance: Texture::new(reflectance), two_sided })
             }

@@ -551,10 +551,10 @@ pub(super) fn align_view_rendered(
         if last {
             rms_after = rel(&lin.rows, lin.mean_pred);
             pixels = lin.rows.len();
-            if s.edge_system {
-                if let Some(pr) = &current {
-                    edges = Some(edge_system(&lv, &camera_with(cam, pose), pr, sigma, scale));
-                }
+            if s.edge_system
+                && let Some(pr) = &current
+            {
+                edges = Some(edge_system(&lv, &camera_with(cam, pose), pr, sigma, scale));
             }
         }
     }

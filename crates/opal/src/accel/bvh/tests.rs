@@ -170,7 +170,7 @@ fn interleaved_packets_match_single_rays_bit_for_bit() {
                 let mut rng = Rng::new(9, p, l as u64);
                 let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.4 - 1.2;
                 let mut d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
-                if (p + l as u64) % 11 == 0 {
+                if (p + l as u64).is_multiple_of(11) {
                     d.y = 0.0;
                 }
                 let tmax = match (p + l as u64) % 5 {

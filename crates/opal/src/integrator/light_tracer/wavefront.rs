@@ -35,7 +35,7 @@ pub(super) const W: usize = 8;
 /// of all sets that enter it (on an object in a room about one in six per set).
 const SETS: usize = 4;
 // (sets go in pairs to the 16-lane packet kernel)
-const _: () = assert!(SETS % 2 == 0);
+const _: () = assert!(SETS.is_multiple_of(2));
 
 /// Inputs of the Lambertian scattering of [`W`] vertices, one per lane (structure of arrays),
 /// besides the rays that reached them.

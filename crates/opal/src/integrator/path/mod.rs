@@ -198,19 +198,20 @@ fn vertex(
     if let Some(ls) = sampler {
         let (idx, pmf, _) = ls.sample(rng.next_f32());
         let u = rng.next_2d();
-        if let Some(smp) = scene.lights[idx].sample_li(si.p, u) {
-            if smp.pdf > 0.0 && !smp.li.is_black() {
-                let wi_l = frame.to_local(smp.wi);
-                // geometric-normal side check avoids light leaks through the surface
-                let f = bsdf.eval(wo_l, wi_l, mode) * wi_l.z.abs();
-                if !f.is_black() {
-                    let pdf_light = pmf * smp.pdf;
-                    let w = if smp.is_delta { 1.0 } else { mis_power(pdf_light, bsdf.pdf(wo_l, wi_l, mode)) };
-                    shadow = Some(Shadow {
-                        ray: smp.shadow_ray(si.p, si.ng),
-                        contrib: st.beta * f * smp.li * (w / pdf_light),
-                    });
-                }
+        if let Some(smp) = scene.lights[idx].sample_li(si.p, u)
+            && smp.pdf > 0.0
+            && !smp.li.is_black()
+        {
+            let wi_l = frame.to_local(smp.wi);
+            // geometric-normal side check avoids light leaks through the surface
+            let f = bsdf.eval(wo_l, wi_l, mode) * wi_l.z.abs();
+            if !f.is_black() {
+                let pdf_light = pmf * smp.pdf;
+                let w = if smp.is_delta { 1.0 } else { mis_power(pdf_light, bsdf.pdf(wo_l, wi_l, mode)) };
+                shadow = Some(Shadow {
+                    ray: smp.shadow_ray(si.p, si.ng),
+                    contrib: st.beta * f * smp.li * (w / pdf_light),
+                });
             }
         }
     }
@@ -246,10 +247,10 @@ pub fn li(scene: &Scene, mut ray: Ray, rng: &mut Rng, s: &PathSettings) -> Spect
             break;
         };
         let (shadow, next) = vertex(scene, s, &mut st, &ray, &si, rng);
-        if let Some(sh) = shadow {
-            if !scene.occluded(&sh.ray) {
-                st.l += sh.contrib;
-            }
+        if let Some(sh) = shadow
+            && !scene.occluded(&sh.ray)
+        {
+            st.l += sh.contrib;
         }
         match next {
             Some(r) => ray = r,

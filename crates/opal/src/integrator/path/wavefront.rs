@@ -115,10 +115,10 @@ pub(super) fn render_row(scene: &Scene, cam: usize, y: usize, s: &PathSettings, 
             fill_inactive(&mut pending.rays, shadowed);
             let blocked = accel.occluded8(&pending.rays);
             for (k, c) in pending.contrib.iter().enumerate() {
-                if let (Some(c), Some(lane)) = (c, &mut lanes[k]) {
-                    if blocked >> k & 1 == 0 {
-                        lane.st.l += *c;
-                    }
+                if let (Some(c), Some(lane)) = (c, &mut lanes[k])
+                    && blocked >> k & 1 == 0
+                {
+                    lane.st.l += *c;
                 }
             }
         }

@@ -286,10 +286,11 @@ fn step(
     let si = interaction(g, lanes, hits);
     // texels a while before their lookups
     for k in 0..W {
-        if hit[k] && g[R_FLAGS][k].to_bits() & F_CONST == 0 {
-            if let Some(t) = tables.textures[g[R_SHAPE][k].to_bits() as usize] {
-                t.prefetch(Vec2::new(si.uv[0][k], si.uv[1][k]));
-            }
+        if hit[k]
+            && g[R_FLAGS][k].to_bits() & F_CONST == 0
+            && let Some(t) = tables.textures[g[R_SHAPE][k].to_bits() as usize]
+        {
+            t.prefetch(Vec2::new(si.uv[0][k], si.uv[1][k]));
         }
     }
     let sampler = scene.light_sampler().expect("wide shading needs a light sampler");

@@ -61,23 +61,23 @@ fn conductor_fresnel(e: &Elem, p: &mut Props) -> Result<ConductorFresnel> {
     let material = p.string_at("material")?;
     let eta = p.color("eta")?;
     let k = p.color("k")?;
-    if let Some((m, l)) = &material {
-        if m != "none" {
-            if eta.is_some() || k.is_some() {
-                return Err(l.err(format!(
-                    "{}: give either `material` or `eta`/`k`, not both (as Mitsuba)",
-                    e.describe()
-                )));
-            }
-            let (eta, k) = conductor_ior(m).ok_or_else(|| {
-                l.err(format!(
-                    "{}: material \"{m}\" is not known (known: none, {})",
-                    e.describe(),
-                    conductor_names().join(", ")
-                ))
-            })?;
-            return Ok(ConductorFresnel::Complex { eta: Spectrum(eta), k: Spectrum(k) });
+    if let Some((m, l)) = &material
+        && m != "none"
+    {
+        if eta.is_some() || k.is_some() {
+            return Err(l.err(format!(
+                "{}: give either `material` or `eta`/`k`, not both (as Mitsuba)",
+                e.describe()
+            )));
         }
+        let (eta, k) = conductor_ior(m).ok_or_else(|| {
+            l.err(format!(
+                "{}: material \"{m}\" is not known (known: none, {})",
+                e.describe(),
+                conductor_names().join(", ")
+            ))
+        })?;
+        return Ok(ConductorFresnel::Complex { eta: Spectrum(eta), k: Spectrum(k) });
     }
     let eta = eta.map_or(Spectrum::ZERO, |c| c.0);
     let k = k.map_or(Spectrum::ONE, |c| c.0);
@@ -188,10 +188,10 @@ pub(super) fn bsdf_mitsuba_material(
             let int_ior = ior(e, &mut p, "int_ior", 1.49)?;
             let ext_ior = ior(e, &mut p, "ext_ior", 1.000277)?;
             let kd = p.texture("diffuse_reflectance")?.unwrap_or(TextureDesc::Constant(Spectrum::splat(0.5)));
-            if let TextureDesc::Constant(c) = &kd {
-                if !c.is_finite() || c.0.iter().any(|&v| v < 0.0) {
-                    return Err(e.loc.err(format!("{}: diffuse_reflectance {:?}", e.describe(), c.0)));
-                }
+            if let TextureDesc::Constant(c) = &kd
+                && (!c.is_finite() || c.0.iter().any(|&v| v < 0.0))
+            {
+                return Err(e.loc.err(format!("{}: diffuse_reflectance {:?}", e.describe(), c.0)));
             }
             let ks = colour(e, &mut p, "specular_reflectance", Spectrum::ONE)?;
             let nonlinear = p.bool("nonlinear")?.unwrap_or(false);

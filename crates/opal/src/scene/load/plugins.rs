@@ -281,10 +281,11 @@ impl Loader {
                 }
             }
         }
-        if let Some((f, l)) = p.string_at("file_format")? {
-            if !f.eq_ignore_ascii_case("openexr") && !f.eq_ignore_ascii_case("exr") {
-                return Err(l.err(format!("film file_format \"{f}\" is not supported (openexr)")));
-            }
+        if let Some((f, l)) = p.string_at("file_format")?
+            && !f.eq_ignore_ascii_case("openexr")
+            && !f.eq_ignore_ascii_case("exr")
+        {
+            return Err(l.err(format!("film file_format \"{f}\" is not supported (openexr)")));
         }
         let has_rfilter = p.object("rfilter")?.is_some();
         p.finish(
