@@ -3,11 +3,12 @@
 //! under MPI (rank 0 writes every file atomically). Tests: the CLI tests `tests/delight.rs` and
 //! the MPI tier `tests/mpi.rs` (same bytes for any number of ranks).
 
-use super::{html, obj_text};
+use super::html;
 use crate::util;
 use anyhow::Result;
 use opal::image::Image;
-use opal_inverse::delight::DelightResult;
+use opal_inverse::delight::{DelightResult, ObjectResult};
+use std::fmt::Write as _;
 use std::path::Path;
 
 /// The output files of each object, in this order: the albedo as EXR and as PNG (kind
@@ -143,4 +144,28 @@ fn write_units(
         }
     }
     Ok(pngs)
+}
+
+/// OBJ text of an object's atlas mesh (OBJ `vt` has v = 0 at the bottom: v_obj = 1 − v).
+fn obj_text(o: &ObjectResult) -> String {
+    let m = &o.atlas.mesh;
+    let mut s = format!("# opal delight: {} with atlas UVs ({}x{})\n", o.id, o.atlas.width, o.atlas.height);
+    for p in &m.positions {
+        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
+    }
+    for uv in &m.uvs {
+        let _ = writeln!(s, "vt {} {}", uv.x, 1.0 - uv.y);
+    }
+    for n in &m.normals {
+        let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
+    }
+    for t in &m.indices {
+        let [a, b, c] = t.map(|i| i + 1);
+        if m.normals.is_empty() {
+            let _ = writeln!(s, "f {a}/{a} {b}/{b} {c}/{c}");
+        } else {
+            let _ = writeln!(s, "f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}");
+        }
+    }
+    s
 }
