@@ -72,7 +72,8 @@ pub(super) const PREFETCH_ROWS: usize = 2048;
 impl<'a> Tables<'a> {
     /// The tables of an all-diffuse scene lit by triangles (see [`super::wavefront::wide_kernel`]).
     pub(super) fn new(scene: &'a Scene) -> Tables<'a> {
-        let mut rows = Vec::new();
+        // huge pages: the rows are read at the hit triangles, all over the table (crate::mem)
+        let mut rows = crate::mem::huge_vec(scene.shapes.iter().map(|sh| sh.mesh.indices.len()).sum());
         let mut textures = Vec::with_capacity(scene.shapes.len());
         for (si, sh) in scene.shapes.iter().enumerate() {
             let Material::Diffuse { reflectance, two_sided } = &sh.material else {
