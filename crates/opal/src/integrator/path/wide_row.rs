@@ -343,7 +343,11 @@ fn step(
         let px = lanes.px[k].as_mut().expect("a hit lane has a pixel");
         // the scalar vertex's draws, in its order: light choice, light sample, BSDF sample
         let rng = &mut px.rng;
-        let (idx, pmf) = sampler.choose(rng.next_f32());
+        let u = rng.next_f32();
+        let (idx, pmf) = match &tables.choice {
+            Some(t) => t.choose(u),
+            None => sampler.choose(u),
+        };
         let ul = rng.next_2d();
         let _uc = rng.next_f32();
         let ub = rng.next_2d();

@@ -13,6 +13,7 @@
 use super::wide::{Kernel, W};
 use crate::accel::packet::PacketHits;
 use crate::light::Light;
+use crate::sampling::SmallChoice;
 use crate::scene::{Material, Scene};
 use crate::texture::Texture;
 
@@ -63,6 +64,8 @@ pub(super) struct Tables<'a> {
     pub(super) textures: Vec<Option<&'a Texture>>,
     /// The rows are prefetched as soon as the hits are known ([`PREFETCH_ROWS`]).
     pub(super) prefetch: bool,
+    /// The light choice as an inline table (at most 16 lights; the light sampler's choice).
+    pub(super) choice: Option<SmallChoice>,
 }
 
 /// Rows are prefetched from this many triangles on (256 KiB of rows): fewer stay in the
@@ -130,7 +133,8 @@ impl<'a> Tables<'a> {
             })
             .collect();
         let prefetch = rows.len() >= PREFETCH_ROWS;
-        Tables { rows, lights, textures, prefetch }
+        let choice = scene.light_sampler().and_then(|l| l.small_choice());
+        Tables { rows, lights, textures, prefetch, choice }
     }
 
     /// Hints the two cache lines of triangle `prim`'s row (no effect on results).
