@@ -140,38 +140,35 @@ impl Palette {
     /// The palette of `img`, or `None` when its channels hold more than 256 distinct values
     /// (bit patterns: `0.0` and `-0.0` are two values).
     fn of(img: &Image) -> Option<Palette> {
-        let first = img.data.first()?.0[0].to_bits();
+        // open addressing on the bits: at most 257 keys in 1024 slots, so probes are short
+        const SLOTS: usize = 1024;
+        let mut keys = [0u32; SLOTS];
+        let mut slot_code = [0u8; SLOTS];
+        let mut used = [false; SLOTS];
         let mut values = [0.0f32; 256];
-        values[0] = f32::from_bits(first);
-        let mut n = 1usize;
-        let mut index = std::collections::HashMap::from([(first, 0u8)]);
-        // recently seen (bits, code) pairs in front of the map, one slot per hash of the bits;
-        // every slot always holds a true pair
-        let mut memo = [(first, 0u8); 1024];
+        let mut n = 0usize;
         let mut codes = Vec::with_capacity(img.data.len());
         for v in &img.data {
             let mut texel = [0u8; 4];
             for (code, x) in texel.iter_mut().zip(v.0) {
                 let bits = x.to_bits();
-                let slot = &mut memo[(bits.wrapping_mul(0x9e37_79b1) >> 22) as usize];
-                if slot.0 != bits {
-                    let c = match index.get(&bits) {
-                        Some(&c) => c,
-                        None if n == values.len() => return None,
-                        None => {
-                            values[n] = x;
-                            index.insert(bits, n as u8);
-                            n += 1;
-                            (n - 1) as u8
-                        }
-                    };
-                    *slot = (bits, c);
+                let mut i = (bits.wrapping_mul(0x9e37_79b1) >> 22) as usize;
+                while used[i] && keys[i] != bits {
+                    i = (i + 1) % SLOTS;
                 }
-                *code = slot.1;
+                if !used[i] {
+                    if n == values.len() {
+                        return None;
+                    }
+                    (used[i], keys[i], slot_code[i]) = (true, bits, n as u8);
+                    values[n] = x;
+                    n += 1;
+                }
+                *code = slot_code[i];
             }
             codes.push(texel);
         }
-        Some(Palette { codes, values })
+        (n > 0).then_some(Palette { codes, values })
     }
 
     /// Texel `i` (`y * width + x`).
