@@ -14,6 +14,7 @@
 //! * [`validate`] — χ² goodness-of-fit, quadrature helpers (product code: tests and CLI use it).
 //! * [`texture`] — texture lookups (Mitsuba `bitmap` semantics).
 //! * [`simd`] — the SIMD policy: instruction set detected once, lane types.
+//! * [`mem`] — memory hints (huge pages) for large tables read at random.
 //! * [`error`] — the library error type.
 //! * [`dist`] — splitting work across processes ([`dist::Comm`]), bitwise independent of their count.
 #![warn(missing_docs)]
@@ -30,6 +31,7 @@ pub mod image;
 pub mod integrator;
 pub mod light;
 pub mod math;
+pub mod mem;
 pub mod sampling;
 pub mod scene;
 pub mod simd;

@@ -214,9 +214,11 @@ pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, BTreeMap<String, 
 fn read_exr_rgb(path: &Path) -> Result<Image> {
     let (w, h, ch) = read_exr_channels(path)?;
     let get = |n: &str| ch.get(n);
-    let data: Vec<Spectrum> = match (get("R"), get("G"), get("B"), get("Y")) {
-        (Some(r), Some(g), Some(b), _) => (0..w * h).map(|i| Spectrum::rgb(r[i], g[i], b[i])).collect(),
-        (None, None, None, Some(y)) => y.iter().map(|&v| Spectrum::splat(v)).collect(),
+    // huge pages: a texture's texels are read all over the image by a render (crate::mem)
+    let mut data: Vec<Spectrum> = crate::mem::huge_vec(w * h);
+    match (get("R"), get("G"), get("B"), get("Y")) {
+        (Some(r), Some(g), Some(b), _) => data.extend((0..w * h).map(|i| Spectrum::rgb(r[i], g[i], b[i]))),
+        (None, None, None, Some(y)) => data.extend(y.iter().map(|&v| Spectrum::splat(v))),
         _ => {
             let names: Vec<&str> = ch.keys().map(|s| s.as_str()).collect();
             return Err(decode_err(
@@ -224,7 +226,7 @@ fn read_exr_rgb(path: &Path) -> Result<Image> {
                 format!("expected channels R,G,B or Y, found [{}]", names.join(", ")),
             ));
         }
-    };
+    }
     Ok(Image { width: w, height: h, data })
 }
 

@@ -369,6 +369,11 @@ impl LightSampler {
         let (i, p) = self.dist.sample_index(u);
         (i, p as f32)
     }
+    /// [`LightSampler::choose`] as one inline table, for at most 16 lights (the same results;
+    /// see [`crate::sampling::SmallChoice`]).
+    pub fn small_choice(&self) -> Option<crate::sampling::SmallChoice> {
+        self.dist.small_choice()
+    }
     /// Picks a light: (index, probability, re-used uniform).
     #[inline]
     pub fn sample(&self, u: f32) -> (usize, f32, f32) {

@@ -95,6 +95,42 @@ impl Distribution1D {
     }
 }
 
+/// [`Distribution1D::sample_index`] of a distribution over at most [`SMALL`] items as one
+/// inline table (no pointer to follow, no search, no subtraction): the count of cdf entries
+/// `≤ u` picks the item and its probability (as `f32`) directly. The same results, bit for bit.
+#[derive(Clone, Debug)]
+pub struct SmallChoice {
+    /// `cdf[1..]` padded with +∞.
+    cdf: [f64; SMALL],
+    /// Per count of entries `≤ u`: the item [`Distribution1D::sample_index`] returns.
+    item: [u32; SMALL + 1],
+    /// Per count: that item's probability, rounded to `f32`.
+    pmf: [f32; SMALL + 1],
+}
+
+impl SmallChoice {
+    /// The item and its probability (`f32`) for `u`: [`Distribution1D::sample_index`] with the
+    /// probability rounded.
+    #[inline(always)]
+    pub fn choose(&self, u: f32) -> (usize, f32) {
+        let u = u as f64;
+        let c: usize = self.cdf.iter().map(|&c| (c <= u) as usize).sum();
+        let c = c.min(SMALL);
+        (self.item[c] as usize, self.pmf[c])
+    }
+}
+
+impl Distribution1D {
+    /// The [`SmallChoice`] table of a distribution over at most [`SMALL`] (16) items.
+    pub fn small_choice(&self) -> Option<SmallChoice> {
+        let small = self.small.as_ref()?;
+        let n = self.len();
+        let item: [u32; SMALL + 1] = std::array::from_fn(|c| self.skip[c.min(n - 1)]);
+        let pmf = item.map(|i| self.pmf(i as usize) as f32);
+        Some(SmallChoice { cdf: **small, item, pmf })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -120,6 +156,31 @@ mod tests {
                 assert_eq!(i, j, "n {n}, u {u}");
             }
         }
+    }
+
+    /// The inline table picks the items and probabilities of `sample_index` (rounded to f32),
+    /// at the cdf's boundaries, at random, with zero weights, up to 16 items; none beyond.
+    #[test]
+    fn small_choice_is_sample_index() {
+        let mut rng = Rng::new(4, 0, 0);
+        for n in [1usize, 2, 3, 5, 16] {
+            for zeros in [false, true] {
+                let w: Vec<f64> = (0..n)
+                    .map(|k| if zeros && k % 3 == 1 { 0.0 } else { 0.5 + (k * 7 % 5) as f64 })
+                    .collect();
+                let d = Distribution1D::new(&w).unwrap();
+                let t = d.small_choice().expect("at most 16 items");
+                let mut us: Vec<f32> = d.cdf.iter().map(|&c| c as f32).collect();
+                us.extend(d.cdf.iter().map(|&c| f32::from_bits((c as f32).to_bits().saturating_sub(1))));
+                us.extend((0..5000).map(|_| rng.next_f32()));
+                us.extend([0.0, -0.0, 1.0, f32::NAN, f32::INFINITY, -1.0]);
+                for u in us {
+                    let (i, p) = d.sample_index(u);
+                    assert_eq!(t.choose(u), (i, p as f32), "n {n}, u {u}");
+                }
+            }
+        }
+        assert!(Distribution1D::new(&[1.0; 17]).unwrap().small_choice().is_none());
     }
 
     #[test]

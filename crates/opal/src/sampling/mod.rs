@@ -12,7 +12,7 @@
 mod distribution;
 mod warp;
 
-pub use distribution::Distribution1D;
+pub use distribution::{Distribution1D, SmallChoice};
 pub use warp::*;
 
 use crate::math::Vec2;

@@ -13,8 +13,9 @@
 //! triangle's **row** (a 128-byte record built once per render: geometric normal, corner uvs,
 //! corner normals, shape, light, flags, constant albedo — [`super::wide_tables`]) is copied into the lanes,
 //! and the hit point, shading normal and uv are reconstructed for the eight lanes at once with
-//! the operations of [`Scene::interaction_at`]; bitmap texels are prefetched as soon as the uvs
-//! are known and looked up after the lanes' random numbers are drawn. Emitters found at a hit
+//! the operations of [`Scene::interaction_at`] ([`locate`], for all sets before any is shaded);
+//! bitmap texels are prefetched as soon as the uvs are known and looked up after the lanes'
+//! random numbers are drawn, so the later sets' texels arrive while the earlier sets are shaded. Emitters found at a hit
 //! (rare) go through the scalar [`super::emission`]. Then the wide vertex, the Russian roulette,
 //! the batched shadow rays ([`crate::accel::Accel::occluded8`]; those of all sets compacted into
 //! as few full packets as they fill, see [`trace_shadows`]) and the pixel bookkeeping.
@@ -170,8 +171,9 @@ fn render_row_lanes(
         }
     }
     let mut inp = VertexIn::default();
-    // the hit lanes' rows (other lanes keep earlier, finite values)
-    let mut g: Gathered = [[0.0; W]; FIELDS];
+    // each set's hit lanes' rows (other lanes keep earlier, finite values) and hit points
+    let mut gs: [Gathered; SETS] = [[[0.0; W]; FIELDS]; SETS];
+    let mut sis: [Interaction; SETS] = std::array::from_fn(|_| Interaction::default());
     let mut packets = [RayPacket::default(); SETS];
     let mut hits = [PacketHits::NONE; SETS];
     let mut outs: [wide::VertexOut; SETS] = std::array::from_fn(|_| wide::VertexOut::default());
@@ -204,18 +206,26 @@ fn render_row_lanes(
             }
         }
         let mut ended = [[false; W]; SETS];
+        let mut hit = [[false; W]; SETS];
+        // every set's hit points and texel prefetches before any set is shaded: the texels of
+        // the later sets arrive while the earlier ones are shaded
         for j in 0..SETS {
-            shaded[j] = alive[j].contains(&true)
+            let (lanes, g, si) = (&sets[j], &mut gs[j], &mut sis[j]);
+            hit[j] = locate(tables, lanes, &alive[j], &hits[j], &mut ended[j], g, si, kernel);
+        }
+        for j in 0..SETS {
+            shaded[j] = hit[j].contains(&true)
                 && step(
                     scene,
                     tables,
                     s,
                     &mut sets[j],
-                    &alive[j],
+                    &hit[j],
                     &hits[j],
                     &mut ended[j],
                     &mut inp,
-                    &mut g,
+                    &gs[j],
+                    &sis[j],
                     &mut outs[j],
                     kernel,
                 );
@@ -253,25 +263,22 @@ fn inactive(packet: &mut RayPacket, active: [bool; W]) {
     }
 }
 
-/// One step after the closest hits: hit reconstruction, emission, depth limit, the lanes'
-/// random numbers, light choices and texture lookups, the wide vertex and the Russian
-/// roulette. Writes the vertex outputs (shadow rays pending) into `out` and returns true when
-/// some lane was shaded (`out` is left as it was otherwise).
+/// The first half of a step after the closest hits, for every set before any is shaded
+/// ([`step`]): which alive lanes hit something (the others end), their rows copied into `g`,
+/// the hit reconstruction into `si` and the prefetch of the bitmap texels they will look up.
+/// Returns the hit lanes (`g` and `si` are left as they were when there are none).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn step(
-    scene: &Scene,
+fn locate(
     tables: &Tables,
-    s: &PathSettings,
-    lanes: &mut Lanes,
+    lanes: &Lanes,
     alive: &[bool; W],
     hits: &PacketHits,
     ended: &mut [bool; W],
-    inp: &mut VertexIn,
     g: &mut Gathered,
-    out: &mut wide::VertexOut,
+    si: &mut Interaction,
     kernel: Kernel,
-) -> bool {
+) -> [bool; W] {
     let mut hit = [false; W];
     for k in 0..W {
         if alive[k] {
@@ -280,10 +287,10 @@ fn step(
         }
     }
     if !hit.contains(&true) {
-        return false;
+        return hit;
     }
     gather(tables, hits, &hit, g, kernel);
-    let si = interaction(g, lanes, hits);
+    *si = interaction(g, lanes, hits);
     // texels a while before their lookups
     for k in 0..W {
         if hit[k]
@@ -293,6 +300,29 @@ fn step(
             t.prefetch(Vec2::new(si.uv[0][k], si.uv[1][k]));
         }
     }
+    hit
+}
+
+/// The rest of a step for the `hit` lanes located by [`locate`] (rows `g`, hit points `si`):
+/// emission, depth limit, the lanes' random numbers, light choices and texture lookups, the
+/// wide vertex and the Russian roulette. Writes the vertex outputs (shadow rays pending) into
+/// `out` and returns true when some lane was shaded (`out` is left as it was otherwise).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn step(
+    scene: &Scene,
+    tables: &Tables,
+    s: &PathSettings,
+    lanes: &mut Lanes,
+    hit: &[bool; W],
+    hits: &PacketHits,
+    ended: &mut [bool; W],
+    inp: &mut VertexIn,
+    g: &Gathered,
+    si: &Interaction,
+    out: &mut wide::VertexOut,
+    kernel: Kernel,
+) -> bool {
     let sampler = scene.light_sampler().expect("wide shading needs a light sampler");
     inp.active = [0; W];
     let mut any = false;
@@ -304,7 +334,7 @@ fn step(
         if light == NO_LIGHT {
             lanes.depth[k] += 1;
         } else {
-            emission_lane(scene, s, lanes, k, &si, hits, g[R_SHAPE][k].to_bits());
+            emission_lane(scene, s, lanes, k, si, hits, g[R_SHAPE][k].to_bits());
         }
         if s.max_depth >= 0 && lanes.depth[k] >= s.max_depth {
             ended[k] = true;
@@ -313,7 +343,11 @@ fn step(
         let px = lanes.px[k].as_mut().expect("a hit lane has a pixel");
         // the scalar vertex's draws, in its order: light choice, light sample, BSDF sample
         let rng = &mut px.rng;
-        let (idx, pmf) = sampler.choose(rng.next_f32());
+        let u = rng.next_f32();
+        let (idx, pmf) = match &tables.choice {
+            Some(t) => t.choose(u),
+            None => sampler.choose(u),
+        };
         let ul = rng.next_2d();
         let _uc = rng.next_f32();
         let ub = rng.next_2d();
@@ -391,6 +425,7 @@ fn step(
 }
 
 /// The hit reconstruction of the eight lanes.
+#[derive(Default)]
 struct Interaction {
     p: V3,
     ng: V3,

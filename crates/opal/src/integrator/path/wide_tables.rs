@@ -13,6 +13,7 @@
 use super::wide::{Kernel, W};
 use crate::accel::packet::PacketHits;
 use crate::light::Light;
+use crate::sampling::SmallChoice;
 use crate::scene::{Material, Scene};
 use crate::texture::Texture;
 
@@ -63,6 +64,8 @@ pub(super) struct Tables<'a> {
     pub(super) textures: Vec<Option<&'a Texture>>,
     /// The rows are prefetched as soon as the hits are known ([`PREFETCH_ROWS`]).
     pub(super) prefetch: bool,
+    /// The light choice as an inline table (at most 16 lights; the light sampler's choice).
+    pub(super) choice: Option<SmallChoice>,
 }
 
 /// Rows are prefetched from this many triangles on (256 KiB of rows): fewer stay in the
@@ -72,7 +75,8 @@ pub(super) const PREFETCH_ROWS: usize = 2048;
 impl<'a> Tables<'a> {
     /// The tables of an all-diffuse scene lit by triangles (see [`super::wavefront::wide_kernel`]).
     pub(super) fn new(scene: &'a Scene) -> Tables<'a> {
-        let mut rows = Vec::new();
+        // huge pages: the rows are read at the hit triangles, all over the table (crate::mem)
+        let mut rows = crate::mem::huge_vec(scene.shapes.iter().map(|sh| sh.mesh.indices.len()).sum());
         let mut textures = Vec::with_capacity(scene.shapes.len());
         for (si, sh) in scene.shapes.iter().enumerate() {
             let Material::Diffuse { reflectance, two_sided } = &sh.material else {
@@ -129,7 +133,8 @@ impl<'a> Tables<'a> {
             })
             .collect();
         let prefetch = rows.len() >= PREFETCH_ROWS;
-        Tables { rows, lights, textures, prefetch }
+        let choice = scene.light_sampler().and_then(|l| l.small_choice());
+        Tables { rows, lights, textures, prefetch, choice }
     }
 
     /// Hints the two cache lines of triangle `prim`'s row (no effect on results).
