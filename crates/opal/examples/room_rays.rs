@@ -133,7 +133,9 @@ fn main() {
                 for l in 0..PACKET {
                     if h.prim[l] >= 0 {
                         let bits = [h.t[l].to_bits(), h.prim[l] as u32, h.b1[l].to_bits(), h.b2[l].to_bits()];
-                        sum = bits.iter().fold(sum.rotate_left(7), |s, &b| s.wrapping_mul(31).wrapping_add(b as u64));
+                        sum = bits
+                            .iter()
+                            .fold(sum.rotate_left(7), |s, &b| s.wrapping_mul(31).wrapping_add(b as u64));
                     }
                 }
             }

@@ -253,7 +253,8 @@ fn order_children(
         if rank == 0 {
             near = k;
         } else {
-            stack[*sp + h - 1 - rank].write(Entry { child: k as u32, tnear: f32::from_bits((k >> 32) as u32) });
+            stack[*sp + h - 1 - rank]
+                .write(Entry { child: k as u32, tnear: f32::from_bits((k >> 32) as u32) });
         }
     }
     *sp += h - 1;
