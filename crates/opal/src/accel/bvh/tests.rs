@@ -247,7 +247,7 @@ fn children_are_ordered_by_distance_then_reference() {
             if round % 2 == 0 { (x * 3.0).floor() } else { x * 10.0 }
         });
         let child: [u32; WIDTH] = std::array::from_fn(|l| {
-            (round * 13 + l as u32 * 7919) % 1000 | (l as u32 % 3 == 0) as u32 * LEAF
+            ((round * 13 + l as u32 * 7919) % 1000) | if l % 3 == 0 { LEAF } else { 0 }
         });
         for mask in 1u32..256 {
             let mut stack = [MaybeUninit::<Entry>::uninit(); STACK];
