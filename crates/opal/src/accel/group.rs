@@ -78,6 +78,12 @@ pub(crate) struct ShearRay {
 impl ShearRay {
     #[inline(always)]
     pub(crate) fn new(ray: &Ray) -> Self {
+        ShearRay::with_inv(ray, Vec3::ONE / ray.d)
+    }
+
+    /// [`ShearRay::new`] given `inv = 1 / ray.d` (computed once for the box tests too).
+    #[inline(always)]
+    pub(crate) fn with_inv(ray: &Ray, inv: Vec3) -> Self {
         // Same axis choice and constants as `TriRay::new`, without branches (random directions
         // make them unpredictable): `kz` from the three comparisons, `(kx, ky)` from `kz` and the
         // sign of `d[kz]`, by table.
@@ -85,8 +91,6 @@ impl ShearRay {
         const KXY: [[u8; 2]; 8] = [[1, 2], [2, 1], [2, 0], [0, 2], [0, 1], [1, 0], [0, 0], [0, 0]];
         let d = ray.d;
         let a = d.abs();
-        // `1/d` on all three axes at once, off the path from the comparisons to `kz`.
-        let inv = Vec3::ONE / d;
         let idx = ((a.x > a.y) as usize) << 2 | ((a.x > a.z) as usize) << 1 | (a.y > a.z) as usize;
         let kz = KZ[idx] as usize;
         let da = [d.x, d.y, d.z, 0.0];

@@ -209,21 +209,23 @@ impl SplitAccel {
                 hits[j] = PacketHits::NONE;
                 continue;
             }
-            hits[j] = self.packet.intersect_lanes(&rays[j]);
+            let h = &mut hits[j];
+            *h = self.packet.intersect_lanes(&rays[j]);
             let mut below = rays[j];
-            for l in 0..PACKET {
-                if hits[j].prim[l] >= 0 {
-                    hits[j].prim[l] = self.big_ids[hits[j].prim[l] as usize] as i32;
-                    below.tmax[l] = hits[j].t[l];
-                }
+            let mut hit = (0..PACKET).fold(0u32, |m, l| m | ((h.prim[l] >= 0) as u32) << l);
+            while hit != 0 {
+                let l = hit.trailing_zeros() as usize;
+                hit &= hit - 1;
+                h.prim[l] = self.big_ids[h.prim[l] as usize] as i32;
+                below.tmax[l] = h.t[l];
             }
-            let enter = self.bvh.enters8(&below);
-            for l in 0..PACKET {
-                if enter >> l & 1 != 0 {
-                    queue.push(&below, j, l);
-                    if queue.n == PACKET {
-                        queue.flush_closest(&self.bvh, hits);
-                    }
+            let mut enter = self.bvh.enters8(&below);
+            while enter != 0 {
+                let l = enter.trailing_zeros() as usize;
+                enter &= enter - 1;
+                queue.push(&below, j, l);
+                if queue.n == PACKET {
+                    queue.flush_closest(&self.bvh, hits);
                 }
             }
         }

@@ -12,27 +12,39 @@ use crate::geometry::Ray;
 use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
 
+/// Byte offsets in a [`super::Node8`] of the near and far plane rows of each axis (`[near, far]`
+/// per axis; the near plane is the maximum for a negative direction, `near[a] = 1`), computed
+/// once per ray so that [`box8`] loads its six rows without index arithmetic.
+#[inline(always)]
+pub(super) fn plane_offsets(near: &[usize; 3]) -> [[usize; 2]; 3] {
+    const ROW: usize = 4 * super::WIDTH;
+    const SIDE: usize = 3 * ROW;
+    [0, 1, 2].map(|a| [near[a] * SIDE + a * ROW, (1 - near[a]) * SIDE + a * ROW])
+}
+
 /// The slab test of a node's eight boxes (see `BoxRay::hit8`): entry distances and the mask of
-/// the boxes overlapping `(0, tmax)`.
+/// the boxes overlapping `(0, tmax)`. `planes` from [`plane_offsets`].
 #[target_feature(enable = "avx2")]
 #[inline]
 pub(super) fn box8(
     n: &super::Node8,
     o: &[__m256; 3],
     inv: &[__m256; 3],
-    near: &[usize; 3],
+    planes: &[[usize; 2]; 3],
     scale: __m256,
     tmax: f32,
 ) -> (__m256, u32) {
     let mut t0 = _mm256_setzero_ps();
     let mut t1 = _mm256_set1_ps(tmax);
+    let base = n.b.as_ptr().cast::<u8>();
     for a in 0..3 {
-        // SAFETY: `Node8` is 64-byte aligned and every plane row is 32 bytes at a multiple of
-        // 32; `near[a]` is 0 or 1.
+        // SAFETY: `Node8` is 64-byte aligned and `b` (its first field) holds the 6 plane rows of
+        // 32 bytes; the offsets from `plane_offsets` are those of the rows `b[near][a]` and
+        // `b[1 - near][a]` with `near` 0 or 1.
         let (pn, pf) = unsafe {
             (
-                _mm256_load_ps(n.b.get_unchecked(near[a])[a].as_ptr()),
-                _mm256_load_ps(n.b.get_unchecked(1 - near[a])[a].as_ptr()),
+                _mm256_load_ps(base.add(planes[a][0]).cast::<f32>()),
+                _mm256_load_ps(base.add(planes[a][1]).cast::<f32>()),
             )
         };
         let tn = _mm256_mul_ps(_mm256_sub_ps(pn, o[a]), inv[a]);
@@ -94,10 +106,11 @@ impl Bvh {
     /// Hints the cache lines of child `c` (a node or a leaf).
     #[inline(always)]
     pub(super) fn prefetch(&self, c: u32) {
+        // (wrapping arithmetic: no bounds check; `c` is a reference of the tree)
         let (p, lines): (*const i8, usize) = if c & LEAF != 0 {
-            (self.leaves[(c & !LEAF) as usize..].as_ptr().cast(), 5)
+            (self.leaves.as_ptr().wrapping_add((c & !LEAF) as usize).cast(), 5)
         } else {
-            (self.nodes[c as usize..].as_ptr().cast(), 4)
+            (self.nodes.as_ptr().wrapping_add(c as usize).cast(), 4)
         };
         for k in 0..lines {
             // SAFETY: prefetching never faults; the address is inside the element.
@@ -111,9 +124,9 @@ impl Bvh {
         let o = [_mm256_set1_ps(ray.o.x), _mm256_set1_ps(ray.o.y), _mm256_set1_ps(ray.o.z)];
         let inv_s = [1.0 / ray.d.x, 1.0 / ray.d.y, 1.0 / ray.d.z];
         let inv = inv_s.map(|i| _mm256_set1_ps(i));
-        let near = inv_s.map(|i| (i < 0.0) as usize);
+        let planes = plane_offsets(&inv_s.map(|i| (i < 0.0) as usize));
         let scale = _mm256_set1_ps(BOX_FAR_SCALE);
-        let ar = AvxRay::new(&ShearRay::new(ray));
+        let ar = AvxRay::new(&ShearRay::with_inv(ray, crate::math::Vec3::from_array(inv_s)));
         let mut tmax = ray.tmax;
         // (its triangle index is looked up at the end: one cache miss per ray, not per candidate)
         let mut best: Best = None;
@@ -132,7 +145,7 @@ impl Bvh {
             } else {
                 // SAFETY: interior references are built from `nodes` indices.
                 let n = unsafe { self.nodes.get_unchecked(cur as usize) };
-                let (t0, mask) = box8(n, &o, &inv, &near, scale, tmax);
+                let (t0, mask) = box8(n, &o, &inv, &planes, scale, tmax);
                 if mask == 0 {
                     // fall through to the pop
                 } else if ANY {

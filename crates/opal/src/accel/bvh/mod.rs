@@ -235,26 +235,30 @@ fn order_children(
         *sp += 1;
         return near as u32;
     }
-    let mut keys = [0u64; WIDTH];
+    // Three or more: each child's rank among them (the keys are distinct: the references
+    // are), without branches; rank 0 is visited next, rank r > 0 goes to stack slot
+    // `sp + h − 1 − r` (the farthest deepest), the order an insertion sort would give.
+    let mut keys = [u64::MAX; WIDTH];
     let mut h = 0;
     let mut m = mask;
     while m != 0 {
         let l = m.trailing_zeros() as usize;
         m &= m - 1;
-        let k = key(l);
-        let mut j = h;
-        while j > 0 && keys[j - 1] > k {
-            keys[j] = keys[j - 1];
-            j -= 1;
-        }
-        keys[j] = k;
+        keys[h & (WIDTH - 1)] = key(l);
         h += 1;
     }
-    for &k in keys[1..h].iter().rev() {
-        stack[*sp].write(Entry { child: k as u32, tnear: f32::from_bits((k >> 32) as u32) });
-        *sp += 1;
+    let mut near = 0;
+    for &k in &keys[..h] {
+        let rank: usize = keys.iter().map(|&o| (o < k) as usize).sum();
+        if rank == 0 {
+            near = k;
+        } else {
+            stack[*sp + h - 1 - rank]
+                .write(Entry { child: k as u32, tnear: f32::from_bits((k >> 32) as u32) });
+        }
     }
-    keys[0] as u32
+    *sp += h - 1;
+    near as u32
 }
 
 /// SAH bounding volume hierarchy of 8-wide nodes over a triangle soup (see the module docs).

@@ -12,11 +12,12 @@
 //! bit (tested: `super::tests::interleaved_packets_match_single_rays_bit_for_bit`). The any-hit
 //! variant ([`Bvh::occluded8`]) stops a lane at its first hit, like [`Bvh::occluded`].
 
-use super::avx::box8;
+use super::avx::{box8, plane_offsets};
 use super::{BOX_FAR_SCALE, Best, Bvh, Entry, LEAF, STACK, order_children, pop};
 use crate::accel::group::{AvxRay, ShearRay, group_hit_avx};
 use crate::accel::packet::{PACKET, PacketHits, RayPacket};
 use crate::geometry::Ray;
+use crate::math::Vec3;
 use std::arch::x86_64::*;
 use std::mem::MaybeUninit;
 
@@ -25,7 +26,8 @@ struct Walker {
     ray: Ray,
     o: [__m256; 3],
     inv: [__m256; 3],
-    near: [usize; 3],
+    /// The near and far plane rows of each axis ([`plane_offsets`]).
+    planes: [[usize; 2]; 3],
     ar: AvxRay,
     tmax: f32,
     /// The closest hit so far.
@@ -43,8 +45,8 @@ impl Walker {
         Walker {
             o: [_mm256_set1_ps(ray.o.x), _mm256_set1_ps(ray.o.y), _mm256_set1_ps(ray.o.z)],
             inv: inv_s.map(|i| _mm256_set1_ps(i)),
-            near: inv_s.map(|i| (i < 0.0) as usize),
-            ar: AvxRay::new(&ShearRay::new(&ray)),
+            planes: plane_offsets(&inv_s.map(|i| (i < 0.0) as usize)),
+            ar: AvxRay::new(&ShearRay::with_inv(&ray, Vec3::from_array(inv_s))),
             tmax: ray.tmax,
             best: None,
             cur: 0,
@@ -78,7 +80,7 @@ impl Walker {
             // SAFETY: interior references are built from `nodes` indices.
             let n = unsafe { bvh.nodes.get_unchecked(cur as usize) };
             let scale = _mm256_set1_ps(BOX_FAR_SCALE);
-            let (t0, mask) = box8(n, &self.o, &self.inv, &self.near, scale, self.tmax);
+            let (t0, mask) = box8(n, &self.o, &self.inv, &self.planes, scale, self.tmax);
             if mask != 0 {
                 let mut tn = [0.0f32; super::WIDTH];
                 // SAFETY: 8 floats, unaligned store.
@@ -133,9 +135,11 @@ impl Bvh {
             while m != 0 {
                 let l = m.trailing_zeros() as usize;
                 m &= m - 1;
-                // SAFETY: lanes in `active` were initialised above.
-                let w = unsafe { walkers[l].assume_init_mut() };
-                if !w.step(self, &mut stacks[l], any) {
+                // SAFETY: `l < PACKET` (a bit of `active`); lanes in `active` were initialised
+                // above.
+                let (w, stack) =
+                    unsafe { (walkers.get_unchecked_mut(l).assume_init_mut(), stacks.get_unchecked_mut(l)) };
+                if !w.step(self, stack, any) {
                     hits.set(l, self.hit_of(w.best));
                     active &= !(1 << l);
                 }

@@ -233,3 +233,39 @@ fn enters8_avx2_equals_portable() {
     // both outcomes occur
     assert!(entered > 1000 && entered < 4000 * 8 - 1000, "{entered}");
 }
+
+/// `order_children` visits the nearest child first and stacks the others farthest deepest, in
+/// the order of (entry distance, reference) — checked against a plain sort for every mask of
+/// 1–8 children, with ties of the entry distance (the reference decides) and zeros.
+#[test]
+fn children_are_ordered_by_distance_then_reference() {
+    let mut rng = Rng::new(4, 2, 0);
+    for round in 0..400u32 {
+        let tn: [f32; WIDTH] = std::array::from_fn(|_| {
+            let x = rng.next_f32();
+            // few distinct values: many ties
+            if round % 2 == 0 { (x * 3.0).floor() } else { x * 10.0 }
+        });
+        let child: [u32; WIDTH] = std::array::from_fn(|l| {
+            ((round * 13 + l as u32 * 7919) % 1000) | if l % 3 == 0 { LEAF } else { 0 }
+        });
+        for mask in 1u32..256 {
+            let mut stack = [MaybeUninit::<Entry>::uninit(); STACK];
+            let mut sp = 3; // entries below stay untouched
+            let near = order_children(mask, &tn, &child, &mut stack, &mut sp);
+            let mut want: Vec<(u32, u32)> =
+                (0..WIDTH).filter(|&l| mask >> l & 1 != 0).map(|l| (tn[l].to_bits(), child[l])).collect();
+            want.sort();
+            assert_eq!(near, want[0].1, "mask {mask:#b}");
+            assert_eq!(sp, 3 + want.len() - 1);
+            // SAFETY: entries 3..sp were written by `order_children`.
+            let got: Vec<(u32, u32)> = stack[3..sp]
+                .iter()
+                .rev()
+                .map(|e| unsafe { e.assume_init() })
+                .map(|e| (e.tnear.to_bits(), e.child))
+                .collect();
+            assert_eq!(got, want[1..].to_vec(), "mask {mask:#b}");
+        }
+    }
+}
