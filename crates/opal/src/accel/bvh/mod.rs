@@ -305,8 +305,10 @@ impl Bvh {
         assert!(tris.len() < LEAF as usize, "too many triangles for a Bvh");
         let (root, refs) = build::build(tris, sah);
         let mut bvh = Bvh {
-            nodes: Vec::with_capacity(tris.len() / 8 + 1),
-            leaves: Vec::with_capacity(tris.len() / 4 + 1),
+            // (read all over by incoherent rays: 2 MiB pages where the system gives them,
+            // `crate::mem`; a vector that outgrows its capacity is an ordinary one)
+            nodes: crate::mem::huge_vec(tris.len() / 8 + 1),
+            leaves: crate::mem::huge_vec(tris.len() / 4 + 1),
             bounds: (Vec3::INFINITY, Vec3::NEG_INFINITY),
             len: tris.len(),
             avx2: crate::simd::isa().avx2(),
