@@ -103,6 +103,7 @@ mod prims;
 mod sink;
 mod starts;
 mod wavefront;
+mod zeroed;
 
 #[cfg(test)]
 mod tests;

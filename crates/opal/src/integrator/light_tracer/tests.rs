@@ -459,8 +459,41 @@ fn simd_seeding_gives_the_scalar_generators() {
 #[test]
 fn i32_cells_with_spill_sum_exactly_like_i64() {
     // Random deposits into a few texels, including values that overflow a cell after a few
-    // additions and values beyond i32: the cell + spill sums equal plain i64 sums.
-    let mut cells = Cells::new(3 * 4);
+    // additions and values beyond i32: the cell + spill sums equal plain i64 sums; in a `Vec`
+    // and in a part of a shared (huge-page advised) mapping.
+    cells_sum_exactly_like_i64(Cells::new(3 * 4));
+    let mut parts = zeroed::Zeroed::many(&[1 << 20, 3 * 4], true);
+    let fine = parts.pop().expect("two parts");
+    assert_eq!(fine.is_mapped(), cfg!(target_os = "linux"), "4 MiB of maps share a mapping on Linux");
+    cells_sum_exactly_like_i64(Cells { fine, spill: Vec::new() });
+}
+
+#[test]
+fn zeroed_maps_are_zero_disjoint_and_writable() {
+    // Maps of a shared mapping (more than one huge page in all) and of `Vec`s (less, or not
+    // asked for): all zero at first, each one's writes seen in it and in no other.
+    let lens = [5, 0, 700_000, 17, 1];
+    for (huge, lens) in [(true, &lens[..]), (false, &lens[..]), (true, &lens[..1])] {
+        let mut maps = zeroed::Zeroed::many(lens, huge);
+        let mapped = huge && lens.len() > 1 && cfg!(target_os = "linux");
+        assert_eq!(maps.len(), lens.len());
+        for (m, &n) in maps.iter().zip(lens) {
+            assert_eq!(m.len(), n);
+            assert!(m.iter().all(|&x| x == 0), "zeroed");
+            assert_eq!(m.is_mapped(), mapped, "huge {huge}, lens {lens:?}");
+        }
+        for (k, m) in maps.iter_mut().enumerate() {
+            for (j, x) in m.iter_mut().enumerate() {
+                *x = (k as i32 + 1) * 1_000_000 + j as i32 % 1000;
+            }
+        }
+        for (k, m) in maps.iter().enumerate() {
+            assert!(m.iter().enumerate().all(|(j, &x)| x == (k as i32 + 1) * 1_000_000 + j as i32 % 1000));
+        }
+    }
+}
+
+fn cells_sum_exactly_like_i64(mut cells: Cells) {
     let mut want = [0i64; 12];
     let mut rng = Rng::new(5, 1, 0);
     let mut spilled = false;
