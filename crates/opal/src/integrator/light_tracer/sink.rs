@@ -8,7 +8,7 @@
 use super::fixed_point::{Acc, Cells, ShapeAcc};
 
 /// Deposits in flight per worker: the queue length of [`Sink`].
-pub(super) const QUEUE: usize = 32;
+pub(super) const QUEUE: usize = 64;
 
 /// A worker's accumulator behind a queue of [`QUEUE`] deposits: a deposit's texel is
 /// prefetched when it is pushed and the addition happens when it leaves the queue, about ten
@@ -79,7 +79,10 @@ impl Sink {
     pub(super) fn push_small(&mut self, shape: usize, direct: bool, index: u32, value: [i32; 3]) {
         self.totals[shape] += value.iter().map(|v| v.unsigned_abs() as u64).sum::<u64>() as u128;
         let map = 2 * shape + direct as usize;
-        crate::simd::prefetch(&self.maps[map].fine[index as usize]);
+        let fine = &self.maps[map].fine;
+        crate::simd::prefetch(&fine[index as usize]);
+        // (a texel's 12 bytes may straddle two cache lines)
+        crate::simd::prefetch(&fine[index as usize + 2]);
         let q = Queued { map: map as u32, index, value };
         if self.len == QUEUE {
             let old = std::mem::replace(&mut self.ring[self.head], q);
