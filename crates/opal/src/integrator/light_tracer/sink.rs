@@ -8,7 +8,7 @@
 use super::fixed_point::{Acc, Cells, ShapeAcc};
 
 /// Deposits in flight per worker: the queue length of [`Sink`].
-pub(super) const QUEUE: usize = 64;
+pub(super) const QUEUE: usize = 128;
 
 /// A worker's accumulator behind a queue of [`QUEUE`] deposits: a deposit's texel is
 /// prefetched when it is pushed and the addition happens when it leaves the queue, about ten
