@@ -433,6 +433,68 @@ fn simd_generators_draw_the_scalar_numbers() {
 }
 
 #[test]
+fn bilinear_lanes_give_the_bits_of_texture_eval() {
+    // `avx::bilinear_lanes` against `Texture::eval(uv) · INV_PI` for random images (1×1 to
+    // 37×5, both wrap modes that index differently) and uvs inside, on and beyond the
+    // borders, non-finite: the lanes it does are bit for bit the scalar values, every lane it
+    // does is in the mask, and it does every lane whose four corners are inside the image.
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        use crate::image::Image;
+        use crate::scene::desc::{FilterType, WrapMode};
+        use crate::texture::{Bitmap, Texture};
+        let mut rng = Rng::new(8, 8, 8);
+        let mut done_total = 0;
+        for (w, h) in [(1, 1), (2, 2), (1, 7), (5, 3), (37, 5), (64, 64)] {
+            let data =
+                (0..w * h).map(|_| Spectrum::rgb(rng.next_f32(), rng.next_f32(), rng.next_f32())).collect();
+            let image = std::sync::Arc::new(Image { width: w, height: h, data });
+            for wrap in [WrapMode::Clamp, WrapMode::Repeat] {
+                let tex =
+                    Texture::Bitmap(Bitmap { image: image.clone(), filter: FilterType::Bilinear, wrap });
+                for round in 0..400 {
+                    let mut uv = [[0.0f32; W]; 2];
+                    for c in uv.iter_mut().flatten() {
+                        *c = match rng.next_u32() % 8 {
+                            0 => [f32::NAN, f32::INFINITY, -1e30, 1e30, 0.0, 1.0, -0.0]
+                                [rng.next_u32() as usize % 7],
+                            1 => (rng.next_u32() % 9) as f32 / 8.0, // texel corners and centres
+                            2 => rng.next_f32() * 3.0 - 1.0,
+                            _ => rng.next_f32(),
+                        };
+                    }
+                    let m = if round % 4 == 0 { 0xff } else { rng.next_u32() & 0xff };
+                    let mut kd = [[-1.0f32; W]; 3];
+                    // SAFETY: the CPU supports AVX2 (checked above).
+                    let done = unsafe { avx::bilinear_lanes(&image, &uv, m, &mut kd) };
+                    assert_eq!(done & !m, 0, "only lanes of the mask");
+                    for l in 0..W {
+                        let (u, v) = (uv[0][l], uv[1][l]);
+                        let (x, y) = ((u * w as f32 - 0.5).floor(), (v * h as f32 - 0.5).floor());
+                        let inside = x >= 0.0 && x + 1.0 < w as f32 && y >= 0.0 && y + 1.0 < h as f32;
+                        assert_eq!(
+                            done >> l & 1 == 1,
+                            m >> l & 1 == 1 && inside,
+                            "lane {l} at ({u}, {v}), {w}×{h}"
+                        );
+                        if done >> l & 1 == 1 {
+                            let want = tex.eval(Vec2::new(u, v)) * crate::math::INV_PI;
+                            for c in 0..3 {
+                                assert_eq!(kd[c][l].to_bits(), want[c].to_bits(), "lane {l} channel {c}");
+                            }
+                            done_total += 1;
+                        } else {
+                            assert!((0..3).all(|c| kd[c][l] == -1.0), "lanes not done are left alone");
+                        }
+                    }
+                }
+            }
+        }
+        assert!(done_total > 2_000, "the lanes were exercised ({done_total})");
+    }
+}
+
+#[test]
 fn simd_seeding_gives_the_scalar_generators() {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
