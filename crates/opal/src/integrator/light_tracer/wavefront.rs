@@ -587,10 +587,25 @@ impl Wavefront {
                     ln.kd_pi = v.kd_pi;
                     ln.bitmap = alive & v.bitmap;
                     ln.uv = v.uv;
+                    let mut first: Option<&Texture> = None;
+                    let mut one_texture = true;
                     for l in lanes_of(ln.bitmap) {
                         let shape = rows[prim[l] as usize].0[ROW_TEX].to_bits();
                         let tex = tab.tex[shape as usize].expect("bitmap rows have a texture");
                         ln.tex[l] = Some(tex);
+                        one_texture &= first.is_none_or(|t| std::ptr::eq(t, tex));
+                        first = Some(tex);
+                    }
+                    // the lines of the taps `settle` will read (`avx::bilinear_lanes`), else
+                    // `Texture::prefetch`
+                    let mut todo = ln.bitmap;
+                    if let (true, Some(Texture::Bitmap(b))) = (one_texture, first)
+                        && b.filter == crate::scene::desc::FilterType::Bilinear
+                    {
+                        todo &= !avx::bilinear_prefetch(&b.image, &v.uv, todo);
+                    }
+                    for l in lanes_of(todo) {
+                        let tex = ln.tex[l].expect("bitmap lanes hold their texture");
                         tex.prefetch(Vec2::new(v.uv[0][l], v.uv[1][l]));
                     }
                 }
