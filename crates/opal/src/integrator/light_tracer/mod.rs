@@ -75,7 +75,8 @@
 //! * `wavefront.rs`: eight paths at a time (`Wavefront`, `Lanes`, the triangle rows of
 //!   `LambertTable`) and the portable lane kernels (`scatter_lanes` and its helpers);
 //! * `avx.rs`: the AVX2 steps of the wavefront (x86-64 only), including the bilinear bitmap
-//!   lookups of the lanes (`bilinear_lanes`, beside `Texture::eval`);
+//!   lookups of the lanes (`bilinear_lanes`, beside `Texture::eval`) and the prefetch of their
+//!   taps (`bilinear_prefetch`);
 //! * `starts.rs`: path starts prepared eight at a time (triangle lights in SIMD);
 //! * `tests.rs`: the unit tests; `tests_emitters.rs`: the emission of spot, directional and
 //!   environment lights against the path tracer.
