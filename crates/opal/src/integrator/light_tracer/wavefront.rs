@@ -368,6 +368,36 @@ pub(super) fn lanes_of(mut m: u32) -> impl Iterator<Item = usize> {
 }
 
 impl<'a> Lanes<'a> {
+    /// Takes the vertices' uvs and records the texture of each lane in `bitmap` (triangle rows
+    /// `prim`), then prefetches the lines its lookup in [`Lanes::settle`] will read: the
+    /// bilinear taps ([`avx::bilinear_prefetch`]) when the lanes share one bilinear bitmap,
+    /// else [`Texture::prefetch`]'s.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn prefetch_bitmaps(&mut self, tab: &LambertTable<'a>, prim: &[u32; W], uv: &[[f32; W]; 2]) {
+        self.uv = *uv;
+        let mut first: Option<&Texture> = None;
+        let mut one_texture = true;
+        for l in lanes_of(self.bitmap) {
+            let shape = tab.rows[prim[l] as usize].0[ROW_TEX].to_bits();
+            let tex = tab.tex[shape as usize].expect("bitmap rows have a texture");
+            self.tex[l] = Some(tex);
+            one_texture &= first.is_none_or(|t| std::ptr::eq(t, tex));
+            first = Some(tex);
+        }
+        let mut todo = self.bitmap;
+        if let (true, Some(Texture::Bitmap(b))) = (one_texture, first)
+            && b.filter == crate::scene::desc::FilterType::Bilinear
+        {
+            // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
+            todo &= !unsafe { avx::bilinear_prefetch(&b.image, uv, todo) };
+        }
+        for l in lanes_of(todo) {
+            let tex = self.tex[l].expect("bitmap lanes hold their texture");
+            tex.prefetch(Vec2::new(uv[0][l], uv[1][l]));
+        }
+    }
+
     /// Puts a new path into lane `l`.
     #[inline]
     fn start(&mut self, l: usize, b: &StartBlock, k: usize) {
@@ -586,28 +616,7 @@ impl Wavefront {
                     alive = avx::scatter(&mut ln.rays, &inp, alive, &mut ln.ratio, tab.any_normals);
                     ln.kd_pi = v.kd_pi;
                     ln.bitmap = alive & v.bitmap;
-                    ln.uv = v.uv;
-                    let mut first: Option<&Texture> = None;
-                    let mut one_texture = true;
-                    for l in lanes_of(ln.bitmap) {
-                        let shape = rows[prim[l] as usize].0[ROW_TEX].to_bits();
-                        let tex = tab.tex[shape as usize].expect("bitmap rows have a texture");
-                        ln.tex[l] = Some(tex);
-                        one_texture &= first.is_none_or(|t| std::ptr::eq(t, tex));
-                        first = Some(tex);
-                    }
-                    // the lines of the taps `settle` will read (`avx::bilinear_lanes`), else
-                    // `Texture::prefetch`
-                    let mut todo = ln.bitmap;
-                    if let (true, Some(Texture::Bitmap(b))) = (one_texture, first)
-                        && b.filter == crate::scene::desc::FilterType::Bilinear
-                    {
-                        todo &= !avx::bilinear_prefetch(&b.image, &v.uv, todo);
-                    }
-                    for l in lanes_of(todo) {
-                        let tex = ln.tex[l].expect("bitmap lanes hold their texture");
-                        tex.prefetch(Vec2::new(v.uv[0][l], v.uv[1][l]));
-                    }
+                    ln.prefetch_bitmaps(tab, &prim, &v.uv);
                 }
                 ln.pending = alive;
                 *alive_out = alive;
