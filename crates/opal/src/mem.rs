@@ -30,7 +30,7 @@ pub fn huge_vec<T>(capacity: usize) -> Vec<T> {
 /// `madvise(MADV_HUGEPAGE)` on the whole 2 MiB pages of `[start, start + len)`; failures are
 /// ignored (the memory stays in 4 KiB pages).
 #[cfg(target_os = "linux")]
-fn advise_huge(start: usize, len: usize) {
+pub(crate) fn advise_huge(start: usize, len: usize) {
     const HUGE: usize = 2 << 20;
     let first = start.next_multiple_of(HUGE);
     let end = (start + len) / HUGE * HUGE;
@@ -44,7 +44,7 @@ fn advise_huge(start: usize, len: usize) {
 }
 
 #[cfg(not(target_os = "linux"))]
-fn advise_huge(_start: usize, _len: usize) {}
+pub(crate) fn advise_huge(_start: usize, _len: usize) {}
 
 #[cfg(test)]
 mod tests {

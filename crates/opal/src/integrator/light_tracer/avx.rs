@@ -350,3 +350,124 @@ fn kernel<const NORMALS: bool>(rays: &RayPacket, inp: &ScatterIn) -> ScatterOut 
 pub(super) fn start_kernel(inp: &StartIn) -> StartOut {
     start_lanes(inp)
 }
+
+// a bitmap's pixels are contiguous f32 triples (`bilinear_lanes` reads them as floats)
+const _: () = assert!(std::mem::size_of::<crate::spectrum::Spectrum>() == 12);
+
+/// `Texture::eval(uv) · INV_PI` of a bilinear bitmap `img` (`texture.rs`, `lookup`: the f32
+/// products `u·w − 0.5`, `floor`, the weights `1 − w₁` and their products, the four corners
+/// weighted and added in the same order, then `· INV_PI`) for the lanes in `m` whose four
+/// corners lie inside the image (no wrapping: `lookup`'s wrap modes leave such indices alone),
+/// written to `kd_pi`; returns those lanes. The others (non-finite `uv`, a corner outside the
+/// image, an image under 2×2 or beyond 2²⁴ texels wide or high or 2³¹ floats) are left to
+/// `Texture::eval`.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn bilinear_lanes(
+    img: &crate::image::Image,
+    uv: &[[f32; W]; 2],
+    m: u32,
+    kd_pi: &mut [[f32; W]; 3],
+) -> u32 {
+    let Some((done, at, wt)) = bilinear_taps(img, uv, m) else { return 0 };
+    let w = img.width;
+    let data = img.data.as_ptr().cast::<f32>();
+    let inv_pi = _mm_set1_ps(crate::math::INV_PI);
+    let three = _mm_setr_epi32(-1, -1, -1, 0);
+    for l in super::wavefront::lanes_of(done) {
+        // SAFETY: corner (x₀, y₀) with x₀ ≤ w − 2, y₀ ≤ h − 2: the four corners' 12 floats
+        // lie in `data` (3·w·h floats). The 4-float loads of the first three corners read one
+        // float of the next pixel, which exists (x₀ + 1 < w, or the next row); the last
+        // corner's load is masked to its 3 floats.
+        let r = unsafe {
+            let p = data.add(at[l] as usize);
+            let row1 = p.add(3 * w);
+            let v00 = _mm_loadu_ps(p);
+            let v10 = _mm_loadu_ps(p.add(3));
+            let v01 = _mm_loadu_ps(row1);
+            let v11 = _mm_maskload_ps(row1.add(3), three);
+            let s = |k: usize| _mm_set1_ps(wt[k][l]);
+            let r = _mm_add_ps(_mm_mul_ps(v00, s(0)), _mm_mul_ps(v10, s(1)));
+            let r = _mm_add_ps(r, _mm_mul_ps(v01, s(2)));
+            _mm_mul_ps(_mm_add_ps(r, _mm_mul_ps(v11, s(3))), inv_pi)
+        };
+        let mut out = [0.0f32; 4];
+        // SAFETY: 4 floats, unaligned store.
+        unsafe { _mm_storeu_ps(out.as_mut_ptr(), r) };
+        for c in 0..3 {
+            kd_pi[c][l] = out[c];
+        }
+    }
+    done
+}
+
+/// The taps of [`bilinear_lanes`]: the lanes of `m` whose four corners lie inside `img`, the
+/// float index of each lane's corner (x₀, y₀) and the four weights (`None`: no such lane, or
+/// an image the lanes do not take).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn bilinear_taps(
+    img: &crate::image::Image,
+    uv: &[[f32; W]; 2],
+    m: u32,
+) -> Option<(u32, [i32; W], [[f32; W]; 4])> {
+    let (w, h) = (img.width, img.height);
+    let fits = |n: usize| (2..=1 << 24).contains(&n);
+    if m == 0 || !fits(w) || !fits(h) || 3 * w as u64 * h as u64 > i32::MAX as u64 {
+        return None;
+    }
+    debug_assert_eq!(img.data.len(), w * h);
+    let (wf, hf) = (_mm256_set1_ps(w as f32), _mm256_set1_ps(h as f32));
+    let (half, one) = (_mm256_set1_ps(0.5), _mm256_set1_ps(1.0));
+    let px = _mm256_sub_ps(_mm256_mul_ps(ld(&uv[0]), wf), half);
+    let py = _mm256_sub_ps(_mm256_mul_ps(ld(&uv[1]), hf), half);
+    // `floor` for every finite value (NaN and infinities fail the range test below)
+    let fx = _mm256_round_ps::<{ _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC }>(px);
+    let fy = _mm256_round_ps::<{ _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC }>(py);
+    // both corners of each axis inside: 0 ≤ x₀ ≤ w − 2 (exact in f32: w ≤ 2²⁴)
+    let zero = _mm256_setzero_ps();
+    let inside = |f: __m256, n: usize| {
+        _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(f, zero),
+            _mm256_cmp_ps::<_CMP_LE_OQ>(f, _mm256_set1_ps((n - 2) as f32)),
+        )
+    };
+    let done = m & bits(_mm256_and_ps(inside(fx, w), inside(fy, h)));
+    if done == 0 {
+        return None;
+    }
+    let (wx1, wy1) = (_mm256_sub_ps(px, fx), _mm256_sub_ps(py, fy));
+    let (wx0, wy0) = (_mm256_sub_ps(one, wx1), _mm256_sub_ps(one, wy1));
+    let mut wt = [[0.0f32; W]; 4];
+    st(&mut wt[0], _mm256_mul_ps(wx0, wy0));
+    st(&mut wt[1], _mm256_mul_ps(wx1, wy0));
+    st(&mut wt[2], _mm256_mul_ps(wx0, wy1));
+    st(&mut wt[3], _mm256_mul_ps(wx1, wy1));
+    // float index of corner (x₀, y₀): 3·(y₀·w + x₀) (meaningless outside `done`)
+    let (xi, yi) = (_mm256_cvttps_epi32(fx), _mm256_cvttps_epi32(fy));
+    let row = _mm256_set1_epi32(w as i32);
+    let idx = _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(yi, row), xi), _mm256_set1_epi32(3));
+    let mut at = [0i32; W];
+    // SAFETY: 8 i32, unaligned store.
+    unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), idx) };
+    Some((done, at, wt))
+}
+
+/// Prefetches the cache lines the bilinear taps of the lanes in `m` read (both rows, both
+/// ends of each row's two pixels, as [`bilinear_lanes`] will read them); returns the lanes
+/// done (the others: see `bilinear_lanes`). No effect on results.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn bilinear_prefetch(img: &crate::image::Image, uv: &[[f32; W]; 2], m: u32) -> u32 {
+    let Some((done, at, _)) = bilinear_taps(img, uv, m) else { return 0 };
+    // float `k` of the pixels (inside: see `bilinear_lanes`)
+    let f = |k: usize| crate::simd::prefetch(&img.data[k / 3].0[k % 3]);
+    for l in super::wavefront::lanes_of(done) {
+        let (i, w) = (at[l] as usize, 3 * img.width);
+        f(i);
+        f(i + 5);
+        f(i + w);
+        f(i + w + 5);
+    }
+    done
+}

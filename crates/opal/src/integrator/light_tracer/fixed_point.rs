@@ -8,6 +8,7 @@
 //! sums with a plain f64 pass.
 
 use super::IrradianceTarget;
+use super::zeroed::Zeroed;
 use crate::scene::Scene;
 
 /// Units of one deposit of the reference size (see [`FixedPoint`]): 2²⁴.
@@ -78,16 +79,18 @@ impl FixedPoint {
 /// overflow moves the cell's content into the `i64` spill map first (exact carry), a value beyond
 /// `i32` goes to the spill map directly. A cell overflows after ≈ 2⁷ deposits of the reference
 /// size (2²⁴ units), so about one deposit in a hundred touches the spill map, which is
-/// allocated at its first use (zeroed pages: only the pages touched become resident).
+/// allocated at its first use (zeroed pages: only the pages touched become resident). The
+/// `i32` cells of a worker's maps share one huge-page advised mapping ([`empty_acc`], see
+/// `zeroed.rs`).
 pub(super) struct Cells {
-    pub(super) fine: Vec<i32>,
+    pub(super) fine: Zeroed,
     pub(super) spill: Vec<i64>,
 }
 
 impl Cells {
     /// `n` channels (3 per texel), all zero.
     pub(super) fn new(n: usize) -> Cells {
-        Cells { fine: vec![0; n], spill: Vec::new() }
+        Cells { fine: Zeroed::new(n), spill: Vec::new() }
     }
 
     /// Adds `v` to channels `i..i + 3`.
@@ -156,16 +159,23 @@ pub(super) struct ShapeAcc {
 
 pub(super) type Acc = Vec<Option<ShapeAcc>>;
 
+/// A worker's empty accumulator for `targets` (direct maps empty unless `direct`): the `i32`
+/// cells of all its maps in one mapping ([`Zeroed::many`]).
 pub(super) fn empty_acc(targets: &[Option<IrradianceTarget>], direct: bool) -> Acc {
+    // one worker's maps in one (huge-page advised) mapping: indirect, direct per target
+    let lens: Vec<usize> = targets
+        .iter()
+        .flatten()
+        .flat_map(|t| [3 * t.width * t.height, if direct { 3 * t.width * t.height } else { 0 }])
+        .collect();
+    let mut fine = Zeroed::many(&lens, true).into_iter();
+    let mut cells = || Cells { fine: fine.next().expect("a map per target and kind"), spill: Vec::new() };
     targets
         .iter()
         .map(|t| {
-            t.as_ref().map(|t| ShapeAcc {
-                width: t.width,
-                height: t.height,
-                direct: Cells::new(if direct { 3 * t.width * t.height } else { 0 }),
-                indirect: Cells::new(3 * t.width * t.height),
-                total: 0,
+            t.as_ref().map(|t| {
+                let indirect = cells();
+                ShapeAcc { width: t.width, height: t.height, direct: cells(), indirect, total: 0 }
             })
         })
         .collect()

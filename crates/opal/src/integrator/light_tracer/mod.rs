@@ -66,13 +66,17 @@
 //! * `fixed_point.rs`: the fixed-point scale (`FixedPoint`) and the integer maps (`Cells`
 //!   with their spill map, `ShapeAcc`);
 //! * `sink.rs`: the per-worker deposit queue (`Sink`) and the prefetch hint;
+//! * `zeroed.rs`: the zeroed `i32` storage of a worker's maps (`Zeroed`: one 2 MiB-aligned
+//!   mapping advised for transparent huge pages on Linux, `Vec`s elsewhere);
 //! * `prims.rs`: per-triangle hit and material data (`Prim`, `Mat`) and the deferred
 //!   scattering weight (`Weight`);
 //! * `path.rs`: one path at a time, any material (`start_path`, `vertex`, `deposit`,
 //!   `trace_path`, the roulette's `survival`);
 //! * `wavefront.rs`: eight paths at a time (`Wavefront`, `Lanes`, the triangle rows of
 //!   `LambertTable`) and the portable lane kernels (`scatter_lanes` and its helpers);
-//! * `avx.rs`: the AVX2 steps of the wavefront (x86-64 only);
+//! * `avx.rs`: the AVX2 steps of the wavefront (x86-64 only), including the bilinear bitmap
+//!   lookups of the lanes (`bilinear_lanes`, beside `Texture::eval`) and the prefetch of their
+//!   taps (`bilinear_prefetch`);
 //! * `starts.rs`: path starts prepared eight at a time (triangle lights in SIMD);
 //! * `tests.rs`: the unit tests; `tests_emitters.rs`: the emission of spot, directional and
 //!   environment lights against the path tracer.
@@ -103,6 +107,7 @@ mod prims;
 mod sink;
 mod starts;
 mod wavefront;
+mod zeroed;
 
 #[cfg(test)]
 mod tests;

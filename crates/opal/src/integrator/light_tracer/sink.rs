@@ -7,12 +7,17 @@
 
 use super::fixed_point::{Acc, Cells, ShapeAcc};
 
-/// Deposits in flight per worker: the queue length of [`Sink`].
-pub(super) const QUEUE: usize = 32;
+/// Deposits in flight per worker: the queue length of [`Sink`]. Measured on the Cornell box
+/// (733 k texels, 8.8 MB of cells per worker, loaded machine, user CPU-s of interleaved runs):
+/// 64 with the second line's prefetch took 0.94–0.99 of 32, 128 0.98–0.99 of 64, 256 no less
+/// than 128 (performance.md, "light-tracing pass").
+pub(super) const QUEUE: usize = 128;
 
-/// A worker's accumulator behind a queue of [`QUEUE`] deposits: a deposit's texel is
-/// prefetched when it is pushed and the addition happens when it leaves the queue, about ten
-/// paths later, so the memory latency overlaps the tracing instead of stalling it.
+/// A worker's accumulator behind a queue of [`QUEUE`] deposits: a deposit's texel (both cache
+/// lines, when its 12 bytes straddle two) is prefetched when it is pushed and the addition
+/// happens when it leaves the queue, [`QUEUE`] deposits later, so the memory latency overlaps
+/// the tracing instead of stalling it (with 32 the adds still waited for their lines when
+/// other jobs shared the caches).
 ///
 /// The maps are kept flat by map number `2·shape + direct` (empty where a shape has none) and
 /// a queued deposit is 20 bytes (`i32` units: a deposit beyond `i32`, in practice never, is
@@ -79,7 +84,10 @@ impl Sink {
     pub(super) fn push_small(&mut self, shape: usize, direct: bool, index: u32, value: [i32; 3]) {
         self.totals[shape] += value.iter().map(|v| v.unsigned_abs() as u64).sum::<u64>() as u128;
         let map = 2 * shape + direct as usize;
-        crate::simd::prefetch(&self.maps[map].fine[index as usize]);
+        let fine = &self.maps[map].fine;
+        crate::simd::prefetch(&fine[index as usize]);
+        // (a texel's 12 bytes may straddle two cache lines)
+        crate::simd::prefetch(&fine[index as usize + 2]);
         let q = Queued { map: map as u32, index, value };
         if self.len == QUEUE {
             let old = std::mem::replace(&mut self.ring[self.head], q);

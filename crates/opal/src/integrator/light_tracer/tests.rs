@@ -433,6 +433,73 @@ fn simd_generators_draw_the_scalar_numbers() {
 }
 
 #[test]
+fn bilinear_lanes_give_the_bits_of_texture_eval() {
+    // `avx::bilinear_lanes` against `Texture::eval(uv) · INV_PI` for random images (1×1 to
+    // 37×5, both wrap modes that index differently) and uvs inside, on and beyond the
+    // borders, non-finite: the lanes it does are bit for bit the scalar values, every lane it
+    // does is in the mask, and it does every lane whose four corners are inside the image;
+    // `avx::bilinear_prefetch` takes the same lanes.
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        use crate::image::Image;
+        use crate::scene::desc::{FilterType, WrapMode};
+        use crate::texture::{Bitmap, Texture};
+        let mut rng = Rng::new(8, 8, 8);
+        let mut done_total = 0;
+        for (w, h) in [(1, 1), (2, 2), (1, 7), (5, 3), (37, 5), (64, 64)] {
+            let data =
+                (0..w * h).map(|_| Spectrum::rgb(rng.next_f32(), rng.next_f32(), rng.next_f32())).collect();
+            let image = std::sync::Arc::new(Image { width: w, height: h, data });
+            for wrap in [WrapMode::Clamp, WrapMode::Repeat] {
+                let tex =
+                    Texture::Bitmap(Bitmap { image: image.clone(), filter: FilterType::Bilinear, wrap });
+                for round in 0..400 {
+                    let mut uv = [[0.0f32; W]; 2];
+                    for c in uv.iter_mut().flatten() {
+                        *c = match rng.next_u32() % 8 {
+                            0 => [f32::NAN, f32::INFINITY, -1e30, 1e30, 0.0, 1.0, -0.0]
+                                [rng.next_u32() as usize % 7],
+                            1 => (rng.next_u32() % 9) as f32 / 8.0, // texel corners and centres
+                            2 => rng.next_f32() * 3.0 - 1.0,
+                            _ => rng.next_f32(),
+                        };
+                    }
+                    let m = if round % 4 == 0 { 0xff } else { rng.next_u32() & 0xff };
+                    let mut kd = [[-1.0f32; W]; 3];
+                    // SAFETY: the CPU supports AVX2 (checked above).
+                    let done = unsafe { avx::bilinear_lanes(&image, &uv, m, &mut kd) };
+                    assert_eq!(done & !m, 0, "only lanes of the mask");
+                    // the prefetch of the same taps: the same lanes (its reads are indexed, so
+                    // a tap outside the image would panic)
+                    // SAFETY: as above.
+                    assert_eq!(unsafe { avx::bilinear_prefetch(&image, &uv, m) }, done, "prefetched lanes");
+                    for l in 0..W {
+                        let (u, v) = (uv[0][l], uv[1][l]);
+                        let (x, y) = ((u * w as f32 - 0.5).floor(), (v * h as f32 - 0.5).floor());
+                        let inside = x >= 0.0 && x + 1.0 < w as f32 && y >= 0.0 && y + 1.0 < h as f32;
+                        assert_eq!(
+                            done >> l & 1 == 1,
+                            m >> l & 1 == 1 && inside,
+                            "lane {l} at ({u}, {v}), {w}×{h}"
+                        );
+                        if done >> l & 1 == 1 {
+                            let want = tex.eval(Vec2::new(u, v)) * crate::math::INV_PI;
+                            for c in 0..3 {
+                                assert_eq!(kd[c][l].to_bits(), want[c].to_bits(), "lane {l} channel {c}");
+                            }
+                            done_total += 1;
+                        } else {
+                            assert!((0..3).all(|c| kd[c][l] == -1.0), "lanes not done are left alone");
+                        }
+                    }
+                }
+            }
+        }
+        assert!(done_total > 2_000, "the lanes were exercised ({done_total})");
+    }
+}
+
+#[test]
 fn simd_seeding_gives_the_scalar_generators() {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
@@ -459,8 +526,41 @@ fn simd_seeding_gives_the_scalar_generators() {
 #[test]
 fn i32_cells_with_spill_sum_exactly_like_i64() {
     // Random deposits into a few texels, including values that overflow a cell after a few
-    // additions and values beyond i32: the cell + spill sums equal plain i64 sums.
-    let mut cells = Cells::new(3 * 4);
+    // additions and values beyond i32: the cell + spill sums equal plain i64 sums; in a `Vec`
+    // and in a part of a shared (huge-page advised) mapping.
+    cells_sum_exactly_like_i64(Cells::new(3 * 4));
+    let mut parts = zeroed::Zeroed::many(&[1 << 20, 3 * 4], true);
+    let fine = parts.pop().expect("two parts");
+    assert_eq!(fine.is_mapped(), cfg!(target_os = "linux"), "4 MiB of maps share a mapping on Linux");
+    cells_sum_exactly_like_i64(Cells { fine, spill: Vec::new() });
+}
+
+#[test]
+fn zeroed_maps_are_zero_disjoint_and_writable() {
+    // Maps of a shared mapping (more than one huge page in all) and of `Vec`s (less, or not
+    // asked for): all zero at first, each one's writes seen in it and in no other.
+    let lens = [5, 0, 700_000, 17, 1];
+    for (huge, lens) in [(true, &lens[..]), (false, &lens[..]), (true, &lens[..1])] {
+        let mut maps = zeroed::Zeroed::many(lens, huge);
+        let mapped = huge && lens.len() > 1 && cfg!(target_os = "linux");
+        assert_eq!(maps.len(), lens.len());
+        for (m, &n) in maps.iter().zip(lens) {
+            assert_eq!(m.len(), n);
+            assert!(m.iter().all(|&x| x == 0), "zeroed");
+            assert_eq!(m.is_mapped(), mapped, "huge {huge}, lens {lens:?}");
+        }
+        for (k, m) in maps.iter_mut().enumerate() {
+            for (j, x) in m.iter_mut().enumerate() {
+                *x = (k as i32 + 1) * 1_000_000 + j as i32 % 1000;
+            }
+        }
+        for (k, m) in maps.iter().enumerate() {
+            assert!(m.iter().enumerate().all(|(j, &x)| x == (k as i32 + 1) * 1_000_000 + j as i32 % 1000));
+        }
+    }
+}
+
+fn cells_sum_exactly_like_i64(mut cells: Cells) {
     let mut want = [0i64; 12];
     let mut rng = Rng::new(5, 1, 0);
     let mut spilled = false;

@@ -298,7 +298,7 @@ struct Lanes<'a> {
     ratio: [f32; W],
     kd_pi: [[f32; W]; 3],
     tex: [Option<&'a Texture>; W],
-    uv: [Vec2; W],
+    uv: [[f32; W]; 2],
     active: u32,
 }
 
@@ -309,12 +309,26 @@ impl Lanes<'_> {
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     fn settle(&mut self, m: u32, rr_depth: i32) -> u32 {
-        for l in lanes_of(m & self.bitmap) {
-            let tex = self.tex[l].expect("bitmap lanes hold their texture");
-            let k = tex.eval(self.uv[l]) * INV_PI;
-            for c in 0..3 {
-                self.kd_pi[c][l] = k[c];
+        // the lanes of one texture at a time: bilinear lookups inside the image in lanes
+        // (`avx::bilinear_lanes`, the same bits), the others through `Texture::eval`
+        let mut todo = m & self.bitmap;
+        while todo != 0 {
+            let tex = self.tex[todo.trailing_zeros() as usize].expect("bitmap lanes hold their texture");
+            let same = todo & mask(|l| self.tex[l].is_some_and(|t| std::ptr::eq(t, tex)));
+            let done = match tex {
+                // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
+                Texture::Bitmap(b) if b.filter == crate::scene::desc::FilterType::Bilinear => unsafe {
+                    avx::bilinear_lanes(&b.image, &self.uv, same, &mut self.kd_pi)
+                },
+                _ => 0,
+            };
+            for l in lanes_of(same & !done) {
+                let k = tex.eval(Vec2::new(self.uv[0][l], self.uv[1][l])) * INV_PI;
+                for c in 0..3 {
+                    self.kd_pi[c][l] = k[c];
+                }
             }
+            todo &= !same;
         }
         // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
         let black = unsafe { avx::pending_weights(&mut self.beta, &self.kd_pi, &self.ratio, m) };
@@ -354,6 +368,36 @@ pub(super) fn lanes_of(mut m: u32) -> impl Iterator<Item = usize> {
 }
 
 impl<'a> Lanes<'a> {
+    /// Takes the vertices' uvs and records the texture of each lane in `bitmap` (triangle rows
+    /// `prim`), then prefetches the lines its lookup in [`Lanes::settle`] will read: the
+    /// bilinear taps ([`avx::bilinear_prefetch`]) when the lanes share one bilinear bitmap,
+    /// else [`Texture::prefetch`]'s.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn prefetch_bitmaps(&mut self, tab: &LambertTable<'a>, prim: &[u32; W], uv: &[[f32; W]; 2]) {
+        self.uv = *uv;
+        let mut first: Option<&Texture> = None;
+        let mut one_texture = true;
+        for l in lanes_of(self.bitmap) {
+            let shape = tab.rows[prim[l] as usize].0[ROW_TEX].to_bits();
+            let tex = tab.tex[shape as usize].expect("bitmap rows have a texture");
+            self.tex[l] = Some(tex);
+            one_texture &= first.is_none_or(|t| std::ptr::eq(t, tex));
+            first = Some(tex);
+        }
+        let mut todo = self.bitmap;
+        if let (true, Some(Texture::Bitmap(b))) = (one_texture, first)
+            && b.filter == crate::scene::desc::FilterType::Bilinear
+        {
+            // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
+            todo &= !unsafe { avx::bilinear_prefetch(&b.image, uv, todo) };
+        }
+        for l in lanes_of(todo) {
+            let tex = self.tex[l].expect("bitmap lanes hold their texture");
+            tex.prefetch(Vec2::new(uv[0][l], uv[1][l]));
+        }
+    }
+
     /// Puts a new path into lane `l`.
     #[inline]
     fn start(&mut self, l: usize, b: &StartBlock, k: usize) {
@@ -443,7 +487,7 @@ impl Wavefront {
             ratio: [0.0; W],
             kd_pi: [[0.0; W]; 3],
             tex: [None; W],
-            uv: [Vec2::ZERO; W],
+            uv: [[0.0; W]; 2],
             active: 0,
         });
         let mut next = paths.start;
@@ -572,14 +616,7 @@ impl Wavefront {
                     alive = avx::scatter(&mut ln.rays, &inp, alive, &mut ln.ratio, tab.any_normals);
                     ln.kd_pi = v.kd_pi;
                     ln.bitmap = alive & v.bitmap;
-                    for l in lanes_of(ln.bitmap) {
-                        let shape = rows[prim[l] as usize].0[ROW_TEX].to_bits();
-                        let tex = tab.tex[shape as usize].expect("bitmap rows have a texture");
-                        let uv = Vec2::new(v.uv[0][l], v.uv[1][l]);
-                        ln.tex[l] = Some(tex);
-                        ln.uv[l] = uv;
-                        tex.prefetch(uv);
-                    }
+                    ln.prefetch_bitmaps(tab, &prim, &v.uv);
                 }
                 ln.pending = alive;
                 *alive_out = alive;
