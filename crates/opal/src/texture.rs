@@ -229,6 +229,12 @@ impl Texture {
 }
 
 impl Bitmap {
+    /// Whether the texels are read as one-byte codes into a table of at most 256 values (see
+    /// [`Bitmap`]); [`Bitmap::eval`] gives the same value either way.
+    pub fn has_palette(&self) -> bool {
+        self.palette.is_some()
+    }
+
     /// Looks up the bitmap at `uv` with its filter and wrap mode (through the palette when
     /// there is one: the same value).
     #[inline]

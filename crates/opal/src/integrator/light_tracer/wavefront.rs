@@ -317,9 +317,10 @@ impl Lanes<'_> {
             let same = todo & mask(|l| self.tex[l].is_some_and(|t| std::ptr::eq(t, tex)));
             let done = match tex {
                 // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
-                Texture::Bitmap(b) if b.filter == crate::scene::desc::FilterType::Bilinear => unsafe {
-                    avx::bilinear_lanes(&b.image, &self.uv, same, &mut self.kd_pi)
-                },
+                // (a bitmap with a palette reads a third of the bytes through `Texture::eval`)
+                Texture::Bitmap(b)
+                    if b.filter == crate::scene::desc::FilterType::Bilinear && !b.has_palette() =>
+                unsafe { avx::bilinear_lanes(&b.image, &self.uv, same, &mut self.kd_pi) },
                 _ => 0,
             };
             for l in lanes_of(same & !done) {
@@ -388,6 +389,7 @@ impl<'a> Lanes<'a> {
         let mut todo = self.bitmap;
         if let (true, Some(Texture::Bitmap(b))) = (one_texture, first)
             && b.filter == crate::scene::desc::FilterType::Bilinear
+            && !b.has_palette()
         {
             // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
             todo &= !unsafe { avx::bilinear_prefetch(&b.image, uv, todo) };
