@@ -442,8 +442,8 @@ fn bilinear_lanes_give_the_bits_of_texture_eval() {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         use crate::image::Image;
-        use crate::scene::desc::{FilterType, WrapMode};
-        use crate::texture::{Bitmap, Texture};
+        use crate::scene::desc::{BitmapDesc, FilterType, TextureDesc, WrapMode};
+        use crate::texture::Texture;
         let mut rng = Rng::new(8, 8, 8);
         let mut done_total = 0;
         for (w, h) in [(1, 1), (2, 2), (1, 7), (5, 3), (37, 5), (64, 64)] {
@@ -451,8 +451,14 @@ fn bilinear_lanes_give_the_bits_of_texture_eval() {
                 (0..w * h).map(|_| Spectrum::rgb(rng.next_f32(), rng.next_f32(), rng.next_f32())).collect();
             let image = std::sync::Arc::new(Image { width: w, height: h, data });
             for wrap in [WrapMode::Clamp, WrapMode::Repeat] {
-                let tex =
-                    Texture::Bitmap(Bitmap { image: image.clone(), filter: FilterType::Bilinear, wrap });
+                // (the small images get a palette: `eval` reads its codes, the same values)
+                let desc = BitmapDesc {
+                    image: image.clone(),
+                    filter: FilterType::Bilinear,
+                    wrap,
+                    path: "mem".into(),
+                };
+                let tex = Texture::new(&TextureDesc::Bitmap(desc));
                 for round in 0..400 {
                     let mut uv = [[0.0f32; W]; 2];
                     for c in uv.iter_mut().flatten() {
