@@ -310,17 +310,17 @@ impl Lanes<'_> {
     #[inline(always)]
     fn settle(&mut self, m: u32, rr_depth: i32) -> u32 {
         // the lanes of one texture at a time: bilinear lookups inside the image in lanes
-        // (`avx::bilinear_lanes`, the same bits), the others through `Texture::eval`
+        // (`avx::bilinear_lanes`, the same bits; which bitmaps: `lanes_take`), the others through
+        // `Texture::eval`
         let mut todo = m & self.bitmap;
         while todo != 0 {
             let tex = self.tex[todo.trailing_zeros() as usize].expect("bitmap lanes hold their texture");
             let same = todo & mask(|l| self.tex[l].is_some_and(|t| std::ptr::eq(t, tex)));
             let done = match tex {
                 // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
-                // (a bitmap with a palette reads a third of the bytes through `Texture::eval`)
-                Texture::Bitmap(b)
-                    if b.filter == crate::scene::desc::FilterType::Bilinear && !b.has_palette() =>
-                unsafe { avx::bilinear_lanes(&b.image, &self.uv, same, &mut self.kd_pi) },
+                Texture::Bitmap(b) if lanes_take(b) => unsafe {
+                    avx::bilinear_lanes(&b.image, &self.uv, same, &mut self.kd_pi)
+                },
                 _ => 0,
             };
             for l in lanes_of(same & !done) {
@@ -388,8 +388,7 @@ impl<'a> Lanes<'a> {
         }
         let mut todo = self.bitmap;
         if let (true, Some(Texture::Bitmap(b))) = (one_texture, first)
-            && b.filter == crate::scene::desc::FilterType::Bilinear
-            && !b.has_palette()
+            && lanes_take(b)
         {
             // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
             todo &= !unsafe { avx::bilinear_prefetch(&b.image, uv, todo) };
@@ -647,6 +646,21 @@ impl Wavefront {
             }
         }
     }
+}
+
+/// `f32` texels of a bitmap up to which its bilinear lookups run in lanes even when it has a
+/// palette (1 MiB, an L2 cache: a 256² texture).
+const LANE_BITMAP_BYTES: usize = 1 << 20;
+
+/// Whether the bilinear lookups of `b` run in lanes ([`avx::bilinear_lanes`], reading the
+/// `f32` texels): bilinear bitmaps, except those with a palette beyond [`LANE_BITMAP_BYTES`],
+/// which `Texture::eval` reads through one-byte codes (a third of the bytes). Both give the
+/// same bits. Measured (performance.md): the scan room's 512² PNG through its palette 0.93–0.99×
+/// the pass's CPU-s; the Cornell box's 256² EXR (a palette of 159 values) 1.01–1.04× slower.
+#[cfg(target_arch = "x86_64")]
+fn lanes_take(b: &crate::texture::Bitmap) -> bool {
+    let bytes = b.image.data.len() * std::mem::size_of::<Spectrum>();
+    b.filter == crate::scene::desc::FilterType::Bilinear && !(b.has_palette() && bytes > LANE_BITMAP_BYTES)
 }
 
 /// Mask of the lanes where `f(l)` holds.
