@@ -125,10 +125,7 @@ pub fn trace8(rays: &[Ray], bvh: &Bvh) -> (usize, f64) {
             let mut n = 0;
             let mut s = 0.0f64;
             for c in ch.chunks(PACKET) {
-                let mut p = RayPacket::default();
-                for (l, r) in c.iter().enumerate() {
-                    p.set(l, r);
-                }
+                let p = RayPacket::from_rays(c);
                 let h = bvh.intersect8(&p);
                 for l in 0..c.len() {
                     if let Some(h) = h.hit(l) {

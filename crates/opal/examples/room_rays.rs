@@ -108,16 +108,7 @@ fn main() {
         let j = (rng.next_f32() * (i + 1) as f32) as usize % (i + 1);
         rays.swap(i, j);
     }
-    let packets: Vec<RayPacket> = rays
-        .chunks(PACKET)
-        .map(|c| {
-            let mut p = RayPacket::default();
-            for (l, r) in c.iter().enumerate() {
-                p.set(l, r);
-            }
-            p
-        })
-        .collect();
+    let packets: Vec<RayPacket> = rays.chunks(PACKET).map(RayPacket::from_rays).collect();
     println!("{} rays ({:.2} per path)", rays.len(), rays.len() as f64 / paths as f64);
     let mut single = Vec::new();
     let mut closest = Vec::new();

@@ -85,16 +85,7 @@ fn main() {
             assert_eq!(a.intersect_sequential(r), h, "{r:?}");
             hits += h.is_some() as usize;
         }
-        let packets: Vec<RayPacket> = rays
-            .chunks(PACKET)
-            .map(|c| {
-                let mut p = RayPacket::default();
-                for (l, r) in c.iter().enumerate() {
-                    p.set(l, r);
-                }
-                p
-            })
-            .collect();
+        let packets: Vec<RayPacket> = rays.chunks(PACKET).map(RayPacket::from_rays).collect();
         for (p, c) in packets.iter().zip(rays.chunks(PACKET)) {
             let h = pa.intersect(p);
             for (l, r) in c.iter().enumerate() {

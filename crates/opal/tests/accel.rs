@@ -432,10 +432,7 @@ fn split_accel_matches_brute_force_in_a_room_with_an_object() {
         rays.push(ray);
     }
     for chunk in rays.chunks(8) {
-        let mut p = RayPacket::default();
-        for (l, r) in chunk.iter().enumerate() {
-            p.set(l, r);
-        }
+        let p = RayPacket::from_rays(chunk);
         // lanes past the chunk stay inactive (tmax 0)
         let h = accel.intersect8(&p);
         let occ = accel.occluded8(&p);
@@ -457,16 +454,7 @@ fn split_accel_matches_brute_force_in_a_room_with_an_object() {
     assert_eq!(packets, 1_000);
     // several packets at once (the BVH's rays gathered across them): the same bits per lane,
     // with inactive lanes mixed in
-    let packets: Vec<RayPacket> = rays
-        .chunks(7)
-        .map(|chunk| {
-            let mut p = RayPacket::default();
-            for (l, r) in chunk.iter().enumerate() {
-                p.set(l, r);
-            }
-            p
-        })
-        .collect();
+    let packets: Vec<RayPacket> = rays.chunks(7).map(RayPacket::from_rays).collect();
     for group in packets.chunks(5) {
         let mut many = vec![opal::accel::packet::PacketHits::NONE; group.len()];
         let mut blocked = vec![0u32; group.len()];

@@ -76,6 +76,17 @@ impl RayPacket {
         }
         self.tmax[l] = ray.tmax;
     }
+
+    /// The packet of `rays` in lanes `0..rays.len()` (at most [`PACKET`]), the other lanes
+    /// inactive.
+    pub fn from_rays(rays: &[Ray]) -> RayPacket {
+        assert!(rays.len() <= PACKET, "{} rays for a packet of {PACKET}", rays.len());
+        let mut p = RayPacket::default();
+        for (l, r) in rays.iter().enumerate() {
+            p.set(l, r);
+        }
+        p
+    }
 }
 
 // The AVX-512 intrinsics (and the `avx512*` target features, which `gonio/fast.rs` enables
@@ -500,10 +511,7 @@ mod tests {
         let bf = BruteForce::new(tris);
         let mut prev = RayPacket::default();
         for chunk in rays.chunks(PACKET) {
-            let mut p = RayPacket::default();
-            for (l, r) in chunk.iter().enumerate() {
-                p.set(l, r);
-            }
+            let p = RayPacket::from_rays(chunk);
             #[cfg(target_arch = "x86_64")]
             if pa.avx512() {
                 // the 16-lane kernel: this packet beside the previous one, bit for bit
@@ -627,10 +635,7 @@ mod tests {
             Ray::new(Vec3::new(0.2, 0.2, 1.5), -Vec3::Z),
         ];
         let pa = PacketAccel::new(vec![far, tri, tri, far, tri]);
-        let mut p = RayPacket::default();
-        for (l, r) in rays.iter().enumerate() {
-            p.set(l, r);
-        }
+        let p = RayPacket::from_rays(&rays);
         let h = pa.intersect(&p);
         assert_eq!(h[0].map(|h| (h.prim, h.t)), Some((1, 1.0)));
         assert_eq!(h[1].map(|h| (h.prim, h.t)), Some((1, 1.0)));
