@@ -213,16 +213,16 @@ impl Texture {
             let x = ((uv.x * img.width as f32) as i64).clamp(0, img.width as i64 - 1) as usize;
             let y = ((uv.y * img.height as f32 - 0.5) as i64).clamp(0, img.height as i64 - 1) as usize;
             let i = y * img.width + x;
-            if let Some(p) = &b.palette {
-                crate::simd::prefetch(&p.codes[i]);
-                if let Some(v) = p.codes.get(i + img.width) {
+            // texel i and the one below it, of whichever texels the lookup reads
+            fn rows<T>(texels: &[T], i: usize, w: usize) {
+                crate::simd::prefetch(&texels[i]);
+                if let Some(v) = texels.get(i + w) {
                     crate::simd::prefetch(v);
                 }
-            } else {
-                crate::simd::prefetch(&img.data[i]);
-                if let Some(v) = img.data.get(i + img.width) {
-                    crate::simd::prefetch(v);
-                }
+            }
+            match &b.palette {
+                Some(p) => rows(&p.codes, i, img.width),
+                None => rows(&img.data, i, img.width),
             }
         }
     }
