@@ -3,8 +3,10 @@
 //! function), hence the same bits.
 //!
 //! Tests (`tests.rs`): `simd_generators_draw_the_scalar_numbers`,
-//! `simd_seeding_gives_the_scalar_generators`, and the identical sums of the wavefront and the
-//! one-path-at-a-time engine.
+//! `simd_seeding_gives_the_scalar_generators`, `bilinear_lanes_give_the_bits_of_texture_eval`,
+//! and the identical sums of the wavefront and the one-path-at-a-time engine; (`tests_lanes.rs`)
+//! `lane_roulette_draws_and_scales_like_the_scalar_one`,
+//! `lane_masks_and_counters_match_the_scalar_loops`.
 
 use super::starts::{StartIn, StartOut, start_lanes};
 use super::wavefront::{
@@ -41,6 +43,29 @@ pub(super) fn lane_mask(b: u32) -> __m256 {
 #[inline]
 fn bits(m: __m256) -> u32 {
     _mm256_movemask_ps(m) as u32
+}
+
+/// The lanes whose `a[l] ≥ k`.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn at_least(a: &[i32; W], k: i32) -> u32 {
+    // SAFETY: 8 i32, unaligned load.
+    let v = unsafe { _mm256_loadu_si256(a.as_ptr().cast()) };
+    // a ≥ k ⇔ ¬(k > a)
+    !bits(_mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_set1_epi32(k), v))) & 0xff
+}
+
+/// `a[l] += 1` in the lanes of `m`.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn increment(a: &mut [i32; W], m: u32) {
+    // SAFETY: 8 i32, unaligned load and store.
+    unsafe {
+        let v = _mm256_loadu_si256(a.as_ptr().cast());
+        // all ones (−1) in the lanes of `m`: subtracting it adds one
+        let v = _mm256_sub_epi32(v, _mm256_castps_si256(lane_mask(m)));
+        _mm256_storeu_si256(a.as_mut_ptr().cast(), v);
+    }
 }
 
 /// [`crate::sampling::Rng::next_f32`] of the eight generators `(state, inc)` whose lane is in
@@ -351,6 +376,46 @@ pub(super) fn start_kernel(inp: &StartIn) -> StartOut {
     start_lanes(inp)
 }
 
+/// `f32::max(x, y)` on eight lanes as the scalar is compiled (`maxnum`: `y` where `x` is NaN,
+/// else `maxps(y, x)`, which gives `x` where `y` is NaN and on ties).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn max_num(x: __m256, y: __m256) -> __m256 {
+    _mm256_blendv_ps(_mm256_max_ps(y, x), y, _mm256_cmp_ps::<_CMP_UNORD_Q>(x, x))
+}
+
+/// The Russian roulette of the lanes in `m` as `trace_path` draws it: `q =`
+/// [`survival`](super::path::survival)`(β, b0)` (`max_component` with `f32::max`, the
+/// division, `min(0.95)`, zero unless `b0 > 0`), one [`crate::sampling::Rng::next_f32`], the
+/// path ends where `u ≥ q`, else `β *= 1 / q` (`Spectrum * f32`). The same operations per lane,
+/// hence the same bits; returns the lanes that end.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn roulette(
+    beta: &mut [[f32; W]; 3],
+    b0: &[f32; W],
+    state: &mut [u64; W],
+    inc: &[u64; W],
+    m: u32,
+) -> u32 {
+    if m == 0 {
+        return 0;
+    }
+    let u = ld(&next_f32_lanes(state, inc, m));
+    let b = [ld(&beta[0]), ld(&beta[1]), ld(&beta[2])];
+    let zero = _mm256_setzero_ps();
+    let b0 = ld(b0);
+    let q = _mm256_min_ps(_mm256_div_ps(max_num(max_num(b[0], b[1]), b[2]), b0), _mm256_set1_ps(0.95));
+    let q = _mm256_blendv_ps(zero, q, _mm256_cmp_ps::<_CMP_GT_OQ>(b0, zero));
+    let end = m & bits(_mm256_cmp_ps::<_CMP_GE_OQ>(u, q));
+    let keep = lane_mask(m & !end);
+    let s = _mm256_div_ps(_mm256_set1_ps(1.0), q);
+    for (c, bc) in b.into_iter().enumerate() {
+        st(&mut beta[c], _mm256_blendv_ps(bc, _mm256_mul_ps(bc, s), keep));
+    }
+    end
+}
+
 // a bitmap's pixels are contiguous f32 triples (`bilinear_lanes` reads them as floats)
 const _: () = assert!(std::mem::size_of::<crate::spectrum::Spectrum>() == 12);
 
@@ -374,6 +439,10 @@ pub(super) fn bilinear_lanes(
     let data = img.data.as_ptr().cast::<f32>();
     let inv_pi = _mm_set1_ps(crate::math::INV_PI);
     let three = _mm_setr_epi32(-1, -1, -1, 0);
+    // the lanes' results go into the three channel vectors by blends, stored once: eight
+    // one-float stores followed by `pending_weights`' vector loads would stall them (no store
+    // forwarding from several stores into one load)
+    let mut kd = [ld(&kd_pi[0]), ld(&kd_pi[1]), ld(&kd_pi[2])];
     for l in super::wavefront::lanes_of(done) {
         // SAFETY: corner (x₀, y₀) with x₀ ≤ w − 2, y₀ ≤ h − 2: the four corners' 12 floats
         // lie in `data` (3·w·h floats). The 4-float loads of the first three corners read one
@@ -391,12 +460,16 @@ pub(super) fn bilinear_lanes(
             let r = _mm_add_ps(r, _mm_mul_ps(v01, s(2)));
             _mm_mul_ps(_mm_add_ps(r, _mm_mul_ps(v11, s(3))), inv_pi)
         };
-        let mut out = [0.0f32; 4];
-        // SAFETY: 4 floats, unaligned store.
-        unsafe { _mm_storeu_ps(out.as_mut_ptr(), r) };
-        for c in 0..3 {
-            kd_pi[c][l] = out[c];
-        }
+        let lane = lane_mask(1 << l);
+        let r = _mm256_broadcastsi128_si256(_mm_castps_si128(r));
+        let r = _mm256_castsi256_ps(r);
+        // channel c of `r` in every lane, put into lane `l`
+        kd[0] = _mm256_blendv_ps(kd[0], _mm256_permute_ps::<0x00>(r), lane);
+        kd[1] = _mm256_blendv_ps(kd[1], _mm256_permute_ps::<0x55>(r), lane);
+        kd[2] = _mm256_blendv_ps(kd[2], _mm256_permute_ps::<0xaa>(r), lane);
+    }
+    for (k, v) in kd_pi.iter_mut().zip(kd) {
+        st(k, v);
     }
     done
 }
@@ -460,14 +533,15 @@ fn bilinear_taps(
 #[inline]
 pub(super) fn bilinear_prefetch(img: &crate::image::Image, uv: &[[f32; W]; 2], m: u32) -> u32 {
     let Some((done, at, _)) = bilinear_taps(img, uv, m) else { return 0 };
-    // float `k` of the pixels (inside: see `bilinear_lanes`)
-    let f = |k: usize| crate::simd::prefetch(&img.data[k / 3].0[k % 3]);
+    let data = img.data.as_ptr().cast::<f32>();
+    let row = 3 * img.width;
     for l in super::wavefront::lanes_of(done) {
-        let (i, w) = (at[l] as usize, 3 * img.width);
-        f(i);
-        f(i + 5);
-        f(i + w);
-        f(i + w + 5);
+        // (inside: see `bilinear_lanes`; `wrapping_add` as the addresses are only hints)
+        let p = data.wrapping_add(at[l] as usize);
+        for q in [p, p.wrapping_add(5), p.wrapping_add(row), p.wrapping_add(row + 5)] {
+            // (a prefetch never faults)
+            _mm_prefetch::<_MM_HINT_T0>(q.cast());
+        }
     }
     done
 }

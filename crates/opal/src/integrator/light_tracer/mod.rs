@@ -113,6 +113,8 @@ mod zeroed;
 mod tests;
 #[cfg(test)]
 mod tests_emitters;
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests_lanes;
 
 use crate::sampling::RngStream;
 use crate::scene::Scene;

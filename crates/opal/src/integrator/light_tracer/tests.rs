@@ -475,8 +475,7 @@ fn bilinear_lanes_give_the_bits_of_texture_eval() {
                     // SAFETY: the CPU supports AVX2 (checked above).
                     let done = unsafe { avx::bilinear_lanes(&image, &uv, m, &mut kd) };
                     assert_eq!(done & !m, 0, "only lanes of the mask");
-                    // the prefetch of the same taps: the same lanes (its reads are indexed, so
-                    // a tap outside the image would panic)
+                    // the prefetch of the same taps: the same lanes
                     // SAFETY: as above.
                     assert_eq!(unsafe { avx::bilinear_prefetch(&image, &uv, m) }, done, "prefetched lanes");
                     for l in 0..W {

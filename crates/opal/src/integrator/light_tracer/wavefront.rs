@@ -11,7 +11,7 @@
 use super::avx;
 #[cfg(target_arch = "x86_64")]
 use super::path::deposit;
-use super::path::{PathCtx, survival, trace_path};
+use super::path::{PathCtx, trace_path};
 #[cfg(target_arch = "x86_64")]
 use super::prims::{Mat, Prim};
 #[cfg(target_arch = "x86_64")]
@@ -22,7 +22,7 @@ use crate::accel::Accel;
 use crate::accel::packet::PacketHits;
 use crate::accel::packet::RayPacket;
 use crate::math::{INV_PI, Vec2};
-use crate::sampling::{Rng, RngStream};
+use crate::sampling::RngStream;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
@@ -280,13 +280,13 @@ impl<'a> LambertTable<'a> {
 struct Lanes<'a> {
     /// The rays to trace next (inactive lanes: `tmax = 0`, never hit).
     rays: RayPacket,
-    /// Each lane's generator, as structure of arrays (state, increment: see [`Rng`]), so the
+    /// Each lane's generator, as structure of arrays (state, increment: see [`crate::sampling::Rng`]), so the
     /// direction samples are drawn for all lanes at once ([`avx::next_f32_lanes`]).
     rng_state: [u64; W],
     rng_inc: [u64; W],
     /// Path weights β.
     beta: [[f32; W]; 3],
-    /// `max_c β_c` at the light (the roulette's reference, see [`survival`]).
+    /// `max_c β_c` at the light (the roulette's reference, see [`super::path::survival`]).
     b0: [f32; W],
     /// Vertices so far.
     depth: [i32; W],
@@ -335,21 +335,11 @@ impl Lanes<'_> {
         let black = unsafe { avx::pending_weights(&mut self.beta, &self.kd_pi, &self.ratio, m) };
         let mut dead = m & black;
         if rr_depth >= 0 {
-            for l in lanes_of(m & !dead & mask(|l| self.depth[l] >= rr_depth)) {
-                let beta = Spectrum([self.beta[0][l], self.beta[1][l], self.beta[2][l]]);
-                let q = survival(beta, self.b0[l]);
-                let mut rng = Rng { state: self.rng_state[l], inc: self.rng_inc[l] };
-                let u = rng.next_f32();
-                self.rng_state[l] = rng.state;
-                if u >= q {
-                    dead |= 1 << l;
-                } else {
-                    let beta = beta * (1.0 / q);
-                    for c in 0..3 {
-                        self.beta[c][l] = beta[c];
-                    }
-                }
-            }
+            // SAFETY: as above.
+            dead |= unsafe {
+                let r = m & !dead & avx::at_least(&self.depth, rr_depth);
+                avx::roulette(&mut self.beta, &self.b0, &mut self.rng_state, &self.rng_inc, r)
+            };
         }
         self.pending &= !m;
         dead
@@ -527,9 +517,6 @@ impl Wavefront {
         let mut rays = [RayPacket::default(); SETS];
         let mut all_hits = [PacketHits::NONE; SETS];
         while lns.iter().any(|ln| ln.active != 0) {
-            for (r, ln) in rays.iter_mut().zip(&lns) {
-                *r = ln.rays;
-            }
             match accel {
                 // (inlined into this AVX2 function)
                 // two sets per call where AVX-512 was detected (the same hits, half the work
@@ -550,7 +537,12 @@ impl Wavefront {
                     }
                 }
                 // the split structure gathers the rays entering its BVH from all sets
-                Some(a) => a.intersect8_many(&rays, &mut all_hits),
+                Some(a) => {
+                    for (r, ln) in rays.iter_mut().zip(&lns) {
+                        *r = ln.rays;
+                    }
+                    a.intersect8_many(&rays, &mut all_hits)
+                }
                 None => {
                     for (h, ln) in all_hits.iter_mut().zip(&lns) {
                         *h = PacketHits::NONE;
@@ -570,15 +562,13 @@ impl Wavefront {
                     continue;
                 }
                 // A lane whose ray missed ends (its pending weight and roulette change nothing).
-                let hit = ln.active & mask(|l| hits.prim[l] >= 0);
+                let hit = ln.active & avx::at_least(&hits.prim, 0);
                 // `vertex`: the pending weights (bitmap albedos looked up now) of the lanes that hit
                 // (lanes facing the roulette settled theirs before the trace, see below)
                 let mut alive = hit & !ln.settle(ln.pending & hit, s.rr_depth);
                 // the new vertices: triangle data, deposits, direction samples, scattering
                 if alive != 0 {
-                    for l in lanes_of(alive) {
-                        ln.depth[l] += 1;
-                    }
+                    avx::increment(&mut ln.depth, alive);
                     let prim: [u32; W] =
                         std::array::from_fn(|l| if alive & (1 << l) != 0 { hits.prim[l] as u32 } else { 0 });
                     let v = avx::vertices(rows, &prim, hits, &ln.rays.d, tab.any_normals, &mut inp);
@@ -590,7 +580,7 @@ impl Wavefront {
                             DepositLanes { index: [0; W], value: [[0; W]; 3], small: 0, shape: [0; W] }
                         };
                         // `deposit` of the lanes whose units fit the queue, straight into the sink
-                        let quick = front & dv.small & mask(|l| dv.shape[l] >= 0);
+                        let quick = front & dv.small & avx::at_least(&dv.shape, 0);
                         for l in lanes_of(quick) {
                             let direct = ln.depth[l] == 1;
                             if direct && !s.direct {
@@ -607,7 +597,7 @@ impl Wavefront {
                         }
                     }
                     if s.max_depth >= 0 {
-                        alive &= !mask(|l| ln.depth[l] >= s.max_depth);
+                        alive &= !avx::at_least(&ln.depth, s.max_depth);
                     }
                     // `Lambert::sample`: a number drawn for the generic sampler, then the direction sample
                     // (the same draws per lane as `Rng::next_f32`, eight lanes at a time)
@@ -633,7 +623,7 @@ impl Wavefront {
                     // traces no ray for nothing. Same numbers in the same order as `vertex` (no
                     // draw of the path comes between), same deposits: a lane that would have
                     // missed ends either way.
-                    let early = alive & mask(|l| ln.depth[l] >= s.rr_depth);
+                    let early = alive & avx::at_least(&ln.depth, s.rr_depth);
                     if early != 0 {
                         alive &= !ln.settle(early, s.rr_depth);
                     }
