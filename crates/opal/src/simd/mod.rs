@@ -52,15 +52,21 @@ impl Isa {
 /// x86-64).
 #[inline(always)]
 pub fn prefetch<T>(v: &T) {
+    prefetch_ptr(v as *const T);
+}
+
+/// [`prefetch`] of an address that need not be dereferenceable (a prefetch never faults).
+#[inline(always)]
+pub fn prefetch_ptr<T>(p: *const T) {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
         // SAFETY: SSE is part of the x86-64 baseline, so the instruction exists; a prefetch
         // never faults and has no architectural effect, whatever the address.
-        unsafe { _mm_prefetch::<_MM_HINT_T0>(v as *const T as *const i8) };
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(p.cast()) };
     }
     #[cfg(not(target_arch = "x86_64"))]
-    let _ = v;
+    let _ = p;
 }
 
 /// The instruction set of this CPU, detected on the first call and cached.

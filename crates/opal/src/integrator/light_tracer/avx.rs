@@ -267,9 +267,10 @@ pub(super) fn vertices(
 /// The texel index `3·(y·w + x)` and the rounded units `round(β_c · factor)` of the
 /// deposits of [`W`] vertices of triangles `prim` at `uv` (as [`super::path::deposit`]: the f32
 /// products `u·w`, the truncation clamped to the map, the f64 products, ties away from
-/// zero, truncation). `small` = the lanes whose three rounded values are below 2³¹ in
-/// magnitude (so finite, and the conversion to integers here is exact: it is up to 2⁵¹);
-/// the others are left to `deposit`.
+/// zero, truncation), their sums of magnitudes and the map number `2·shape + direct` (direct:
+/// `depth == 1`). `small` = the lanes whose three rounded values are below 2³¹ in magnitude
+/// (so finite, and the conversions to integers here are exact: they are up to 2⁵¹); the
+/// others are left to `deposit`. `target` = the lanes whose triangle deposits.
 #[target_feature(enable = "avx2")]
 #[inline]
 pub(super) fn deposit_values(
@@ -277,6 +278,7 @@ pub(super) fn deposit_values(
     prim: &[u32; W],
     uv: &[[f32; W]; 2],
     beta: &[[f32; W]; 3],
+    depth: &[i32; W],
 ) -> DepositLanes {
     // the last 8 floats of the eight rows, transposed (loads and shuffles: cheaper than
     // gathers, see `vertices`)
@@ -298,15 +300,38 @@ pub(super) fn deposit_values(
     let (x, y) = (texel(ld(&uv[0]), w), texel(ld(&uv[1]), h));
     let wi = _mm256_cvttps_epi32(w);
     let index = _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(y, wi), x), _mm256_set1_epi32(3));
-    let mut out = DepositLanes { index: [0; W], value: [[0; W]; 3], small: u32::MAX, shape: [0; W] };
-    // SAFETY: 8 i32, unaligned store.
-    unsafe { _mm256_storeu_si256(out.shape.as_mut_ptr().cast(), _mm256_castps_si256(field(ROW_SHAPE))) };
+    let mut out = DepositLanes {
+        index: [0; W],
+        value: [[0; W]; 3],
+        units: [0; W],
+        map: [0; W],
+        small: u32::MAX,
+        target: 0,
+    };
+    // SAFETY: 8 i32, unaligned load.
+    let direct =
+        _mm256_cmpeq_epi32(unsafe { _mm256_loadu_si256(depth.as_ptr().cast()) }, _mm256_set1_epi32(1));
+    let shape = _mm256_castps_si256(field(ROW_SHAPE));
+    out.target = !bits(_mm256_castsi256_ps(shape)) & 0xff;
+    // 2·shape + direct (`direct` is −1 where true)
+    let map = _mm256_sub_epi32(_mm256_add_epi32(shape, shape), direct);
+    // SAFETY: 8 i32, unaligned stores.
+    unsafe {
+        _mm256_storeu_si256(out.map.as_mut_ptr().cast(), map);
+        _mm256_storeu_si256(out.index.as_mut_ptr().cast(), index);
+    }
     let limit32 = _mm256_set1_pd(2_147_483_648.0); // 2³¹
-    // SAFETY: 8 i32, unaligned store.
-    unsafe { _mm256_storeu_si256(out.index.as_mut_ptr().cast(), index) };
     let magic = _mm256_set1_pd(6_755_399_441_055_744.0); // 1.5·2⁵²
     let sign = _mm256_set1_pd(-0.0);
     let half = _mm256_set1_pd(0.5);
+    // exact integers of f64 lanes below 2⁵¹ in magnitude
+    let to_int = |t: __m256d| {
+        _mm256_sub_epi64(_mm256_castpd_si256(_mm256_add_pd(t, magic)), _mm256_castpd_si256(magic))
+    };
+    // the low 32 bits of four 64-bit lanes
+    let low = |v: __m256i| {
+        _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(v, _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6)))
+    };
     // the f64 factors: the low and high halves of lanes 0, 1 | 4, 5 and 2, 3 | 6, 7
     // interleaved, then lanes 0–3 and 4–7
     let (f_lo, f_hi) = (field(ROW_FACTOR), field(ROW_FACTOR + 1));
@@ -316,6 +341,7 @@ pub(super) fn deposit_values(
         _mm256_castps_pd(_mm256_permute2f128_ps::<0x31>(a, b)),
     ];
     for (half_lanes, &f) in factors.iter().enumerate() {
+        let mut units = _mm256_setzero_si256();
         for (c, beta_c) in beta.iter().enumerate() {
             // SAFETY: 4 floats of an 8-float array.
             let b = unsafe { _mm_loadu_ps(beta_c.as_ptr().add(4 * half_lanes)) };
@@ -325,11 +351,12 @@ pub(super) fn deposit_values(
             let big = (!_mm256_movemask_pd(fits) & 0xf) as u32;
             out.small &= !(big << (4 * half_lanes));
             let t = _mm256_round_pd::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(r);
-            let v =
-                _mm256_sub_epi64(_mm256_castpd_si256(_mm256_add_pd(t, magic)), _mm256_castpd_si256(magic));
-            // SAFETY: 4 i64 of an 8-i64 array.
-            unsafe { _mm256_storeu_si256(out.value[c].as_mut_ptr().add(4 * half_lanes).cast(), v) };
+            units = _mm256_add_epi64(units, to_int(_mm256_andnot_pd(sign, t)));
+            // SAFETY: 4 i32 of an 8-i32 array.
+            unsafe { _mm_storeu_si128(out.value[c].as_mut_ptr().add(4 * half_lanes).cast(), low(to_int(t))) };
         }
+        // SAFETY: 4 u64 of an 8-u64 array.
+        unsafe { _mm256_storeu_si256(out.units.as_mut_ptr().add(4 * half_lanes).cast(), units) };
     }
     out.small &= (1 << W) - 1;
     out

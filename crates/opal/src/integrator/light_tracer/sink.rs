@@ -19,19 +19,20 @@ pub(super) const QUEUE: usize = 128;
 /// the tracing instead of stalling it (with 32 the adds still waited for their lines when
 /// other jobs shared the caches).
 ///
-/// The maps are kept flat by map number `2·shape + direct` (empty where a shape has none) and
-/// a queued deposit is 20 bytes (`i32` units: a deposit beyond `i32`, in practice never, is
-/// added at once), so a deposit costs few instructions besides its cache miss.
+/// The maps are kept flat by map number `2·shape + direct` (empty where a shape has none), plus
+/// one texel of scratch at the end that the queue's initial entries (zero units) point to, so
+/// the queue is always full and a push always takes one deposit out. A queued deposit is 20
+/// bytes (`i32` units: a deposit beyond `i32`, in practice never, is added at once), so a
+/// deposit costs few instructions besides its cache miss.
 pub(super) struct Sink {
-    /// Per map `2·shape + direct`.
+    /// Per map `2·shape + direct`, then the scratch map.
     maps: Vec<Cells>,
     /// Per shape: the map size (`None`: no target) and the exact sum of |units| deposited.
     shapes: Vec<Option<(usize, usize)>>,
     totals: Vec<u128>,
     ring: [Queued; QUEUE],
-    /// Oldest queued deposit, number queued.
+    /// Oldest queued deposit.
     head: usize,
-    len: usize,
 }
 
 /// A queued deposit: map number, index of the texel's red channel, units.
@@ -44,7 +45,7 @@ struct Queued {
 
 impl Sink {
     pub(super) fn new(acc: Acc) -> Sink {
-        let mut maps = Vec::with_capacity(2 * acc.len());
+        let mut maps = Vec::with_capacity(2 * acc.len() + 1);
         let mut shapes = Vec::with_capacity(acc.len());
         for m in acc {
             match m {
@@ -60,8 +61,11 @@ impl Sink {
                 }
             }
         }
+        // the scratch texel of the queue's initial (zero) entries
+        let scratch = Queued { map: maps.len() as u32, index: 0, value: [0; 3] };
+        maps.push(Cells::new(3));
         let totals = vec![0; shapes.len()];
-        Sink { maps, shapes, totals, ring: [Queued::default(); QUEUE], head: 0, len: 0 }
+        Sink { maps, shapes, totals, ring: [scratch; QUEUE], head: 0 }
     }
 
     /// Queues a deposit ([`Sink::push_small`]), or adds it at once when its units or index do
@@ -69,47 +73,38 @@ impl Sink {
     #[inline]
     pub(super) fn push(&mut self, p: Pending) {
         let value = p.value.map(|v| v as i32);
+        let map = 2 * p.shape + p.direct as usize;
         if value.iter().zip(&p.value).all(|(&a, &b)| a as i64 == b) && p.index <= u32::MAX as usize {
-            self.push_small(p.shape, p.direct, p.index as u32, value);
+            let units = value.iter().map(|v| v.unsigned_abs() as u64).sum();
+            self.push_small(map as u32, p.index as u32, value, units);
         } else {
             self.totals[p.shape] += p.value.iter().map(|v| v.unsigned_abs() as u128).sum::<u128>();
-            self.maps[2 * p.shape + p.direct as usize].add(p.index, p.value);
+            self.maps[map].add(p.index, p.value);
         }
     }
 
-    /// Queues a deposit whose units fit in `i32` (channel index `index` of the map of `shape`,
-    /// direct or indirect): counts it in the shape's total, prefetches its texel and adds the
-    /// deposit that leaves the queue.
+    /// Queues a deposit whose units fit in `i32` (channel index `index` of map `map`, i.e.
+    /// `2·shape + direct`; `units` = the sum of the magnitudes of `value`): counts it in the
+    /// shape's total, prefetches its texel and adds the deposit that leaves the queue.
     #[inline(always)]
-    pub(super) fn push_small(&mut self, shape: usize, direct: bool, index: u32, value: [i32; 3]) {
-        self.totals[shape] += value.iter().map(|v| v.unsigned_abs() as u64).sum::<u64>() as u128;
-        let map = 2 * shape + direct as usize;
-        let fine = &self.maps[map].fine;
-        crate::simd::prefetch(&fine[index as usize]);
-        // (a texel's 12 bytes may straddle two cache lines)
-        crate::simd::prefetch(&fine[index as usize + 2]);
-        let q = Queued { map: map as u32, index, value };
-        if self.len == QUEUE {
-            let old = std::mem::replace(&mut self.ring[self.head], q);
-            self.head = (self.head + 1) % QUEUE;
-            self.apply(old);
-        } else {
-            self.ring[(self.head + self.len) % QUEUE] = q;
-            self.len += 1;
-        }
-    }
-
-    #[inline]
-    fn apply(&mut self, q: Queued) {
-        self.maps[q.map as usize].add32(q.index as usize, q.value);
+    pub(super) fn push_small(&mut self, map: u32, index: u32, value: [i32; 3], units: u64) {
+        self.totals[map as usize / 2] += units as u128;
+        let fine = &self.maps[map as usize].fine;
+        let p = fine.as_ptr().wrapping_add(index as usize);
+        // (a texel's 12 bytes may straddle two cache lines; prefetches never fault)
+        crate::simd::prefetch_ptr(p);
+        crate::simd::prefetch_ptr(p.wrapping_add(2));
+        let old = std::mem::replace(&mut self.ring[self.head], Queued { map, index, value });
+        self.head = (self.head + 1) % QUEUE;
+        self.maps[old.map as usize].add32(old.index as usize, old.value);
     }
 
     /// Applies the queued deposits and returns the accumulator.
     pub(super) fn finish(mut self) -> Acc {
-        for k in 0..self.len {
-            let q = self.ring[(self.head + k) % QUEUE];
-            self.apply(q);
+        for q in self.ring {
+            self.maps[q.map as usize].add32(q.index as usize, q.value);
         }
+        self.maps.pop(); // the scratch map
         let mut maps = self.maps.into_iter();
         self.shapes
             .iter()

@@ -408,14 +408,17 @@ impl<'a> Lanes<'a> {
     }
 }
 
-/// What [`avx::deposit_values`] computes: texel index and units of each lane, the lanes whose
-/// units are below 2³¹ in magnitude (`small`: the others are left to [`deposit`]), and the
-/// triangle's shape when its hits deposit (else −1).
+/// What [`avx::deposit_values`] computes: per lane the texel index, the units (exact for the
+/// lanes in `small`, whose units are below 2³¹ in magnitude; the others are left to
+/// [`deposit`]), their sum of magnitudes and the map number `2·shape + direct`; `target` =
+/// the lanes whose triangle's hits deposit.
 pub(super) struct DepositLanes {
     pub(super) index: [i32; W],
-    pub(super) value: [[i64; W]; 3],
+    pub(super) value: [[i32; W]; 3],
+    pub(super) units: [u64; W],
+    pub(super) map: [i32; W],
     pub(super) small: u32,
-    pub(super) shape: [i32; W],
+    pub(super) target: u32,
 }
 
 /// What [`avx::vertices`] computes besides the kernel's inputs.
@@ -575,19 +578,24 @@ impl Wavefront {
                     let front = alive & v.front;
                     if front != 0 {
                         let dv = if tab.vector_deposits {
-                            avx::deposit_values(rows, &prim, &v.uv, &ln.beta)
+                            avx::deposit_values(rows, &prim, &v.uv, &ln.beta, &ln.depth)
                         } else {
-                            DepositLanes { index: [0; W], value: [[0; W]; 3], small: 0, shape: [0; W] }
+                            DepositLanes {
+                                index: [0; W],
+                                value: [[0; W]; 3],
+                                units: [0; W],
+                                map: [0; W],
+                                small: 0,
+                                target: 0,
+                            }
                         };
                         // `deposit` of the lanes whose units fit the queue, straight into the sink
-                        let quick = front & dv.small & avx::at_least(&dv.shape, 0);
-                        for l in lanes_of(quick) {
-                            let direct = ln.depth[l] == 1;
-                            if direct && !s.direct {
-                                continue;
-                            }
-                            let value = [0, 1, 2].map(|c| dv.value[c][l] as i32);
-                            ctx.sink.push_small(dv.shape[l] as usize, direct, dv.index[l] as u32, value);
+                        // (first-hit deposits only when asked for)
+                        let quick = front & dv.small & dv.target;
+                        let skip = if s.direct { 0 } else { quick & !avx::at_least(&ln.depth, 2) };
+                        for l in lanes_of(quick & !skip) {
+                            let value = [dv.value[0][l], dv.value[1][l], dv.value[2][l]];
+                            ctx.sink.push_small(dv.map[l] as u32, dv.index[l] as u32, value, dv.units[l]);
                         }
                         for l in lanes_of(front & !quick) {
                             let pr = &ctx.prims[prim[l] as usize];
