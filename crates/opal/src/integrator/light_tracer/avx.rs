@@ -6,7 +6,7 @@
 //! `simd_seeding_gives_the_scalar_generators`, `bilinear_lanes_give_the_bits_of_texture_eval`,
 //! and the identical sums of the wavefront and the one-path-at-a-time engine; (`tests_lanes.rs`)
 //! `lane_roulette_draws_and_scales_like_the_scalar_one`,
-//! `lane_masks_and_counters_match_the_scalar_loops`.
+//! `lane_masks_and_counters_match_the_scalar_loops`, `several_draws_at_once_are_the_scalar_numbers`.
 
 use super::starts::{StartIn, StartOut, start_lanes};
 use super::wavefront::{
@@ -75,43 +75,73 @@ pub(super) fn increment(a: &mut [i32; W], m: u32) {
 #[target_feature(enable = "avx2")]
 #[inline]
 pub(super) fn next_f32_lanes(state: &mut [u64; W], inc: &[u64; W], m: u32) -> [f32; W] {
+    let [u] = draws::<1, 0>(state, inc, m);
+    u
+}
+
+/// [`draws`]: `K` numbers of the generators in `m`, after `SKIP` draws whose numbers are not
+/// needed (the states still advance).
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn draws<const K: usize, const SKIP: usize>(
+    state: &mut [u64; W],
+    inc: &[u64; W],
+    m: u32,
+) -> [[f32; W]; K] {
     let mult = crate::sampling::Rng::MULT;
     let (m_lo, m_hi) = (_mm256_set1_epi64x(mult as i64), _mm256_set1_epi64x((mult >> 32) as i64));
     let low32 = _mm256_set1_epi64x(0xffff_ffff);
-    let mut out = [_mm256_setzero_si256(); 2];
-    for (h, o) in out.iter_mut().enumerate() {
-        // SAFETY: 4 u64 of an 8-u64 array, unaligned loads and store.
-        let old = unsafe { _mm256_loadu_si256(state.as_ptr().add(4 * h).cast()) };
-        let inc = unsafe { _mm256_loadu_si256(inc.as_ptr().add(4 * h).cast()) };
+    // one step of the generator: state · MULT + inc (mod 2⁶⁴)
+    let step = |old: __m256i, inc: __m256i| {
         let lo_lo = _mm256_mul_epu32(old, m_lo);
         let cross = _mm256_add_epi64(
             _mm256_mul_epu32(_mm256_srli_epi64::<32>(old), m_lo),
             _mm256_mul_epu32(old, m_hi),
         );
-        let new = _mm256_add_epi64(_mm256_add_epi64(lo_lo, _mm256_slli_epi64::<32>(cross)), inc);
-        let bits = _mm256_set1_epi64x(((m >> (4 * h)) & 0xf) as i64);
-        let one = _mm256_setr_epi64x(1, 2, 4, 8);
-        let take = _mm256_cmpeq_epi64(_mm256_and_si256(bits, one), one);
-        let next = _mm256_blendv_epi8(old, new, take);
-        // SAFETY: as above.
-        unsafe { _mm256_storeu_si256(state.as_mut_ptr().add(4 * h).cast(), next) };
-        // ((old >> 18) ^ old) >> 27, low 32 bits, rotated right by old >> 59
+        _mm256_add_epi64(_mm256_add_epi64(lo_lo, _mm256_slli_epi64::<32>(cross)), inc)
+    };
+    // the output of a state: ((old >> 18) ^ old) >> 27, low 32 bits, rotated right by old >> 59
+    let output = |old: __m256i| {
         let x = _mm256_and_si256(
             _mm256_srli_epi64::<27>(_mm256_xor_si256(_mm256_srli_epi64::<18>(old), old)),
             low32,
         );
         let rot = _mm256_srli_epi64::<59>(old);
         let left = _mm256_sllv_epi64(x, _mm256_sub_epi64(_mm256_set1_epi64x(32), rot));
-        *o = _mm256_or_si256(_mm256_srlv_epi64(x, rot), _mm256_and_si256(left, low32));
+        _mm256_or_si256(_mm256_srlv_epi64(x, rot), _mm256_and_si256(left, low32))
+    };
+    let mut out = [[_mm256_setzero_si256(); 2]; K];
+    for h in 0..2 {
+        // SAFETY: 4 u64 of an 8-u64 array, unaligned loads.
+        let old = unsafe { _mm256_loadu_si256(state.as_ptr().add(4 * h).cast()) };
+        let inc = unsafe { _mm256_loadu_si256(inc.as_ptr().add(4 * h).cast()) };
+        let mut s = old;
+        for _ in 0..SKIP {
+            s = step(s, inc);
+        }
+        for o in out.iter_mut() {
+            o[h] = output(s);
+            s = step(s, inc);
+        }
+        let bits = _mm256_set1_epi64x(((m >> (4 * h)) & 0xf) as i64);
+        let one = _mm256_setr_epi64x(1, 2, 4, 8);
+        let take = _mm256_cmpeq_epi64(_mm256_and_si256(bits, one), one);
+        // SAFETY: as above, store.
+        unsafe {
+            _mm256_storeu_si256(state.as_mut_ptr().add(4 * h).cast(), _mm256_blendv_epi8(old, s, take))
+        };
     }
     // the low 32 bits of the eight 64-bit results, in lane order
     let pick = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
-    let (a, b) = (_mm256_permutevar8x32_epi32(out[0], pick), _mm256_permutevar8x32_epi32(out[1], pick));
-    let u = _mm256_blend_epi32::<0xf0>(a, b);
-    let f = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(u)), _mm256_set1_ps(1.0 / 16_777_216.0));
-    let mut r = [0.0; W];
-    st(&mut r, f);
-    r
+    out.map(|[lo, hi]| {
+        let (a, b) = (_mm256_permutevar8x32_epi32(lo, pick), _mm256_permutevar8x32_epi32(hi, pick));
+        let u = _mm256_blend_epi32::<0xf0>(a, b);
+        let f =
+            _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32::<8>(u)), _mm256_set1_ps(1.0 / 16_777_216.0));
+        let mut r = [0.0; W];
+        st(&mut r, f);
+        r
+    })
 }
 
 /// The products modulo 2⁶⁴ of four 64-bit lanes by `c` (from three 32×32-bit products).

@@ -171,11 +171,8 @@ pub(super) fn starts(
     avx::seed_lanes(stream.base(), range.start, &mut state, &mut inc);
     // `start_path`'s draws: the light choice, then `u_pos` and `u_dir` (x before y)
     let all = (1u32 << W) - 1;
-    let u_light = avx::next_f32_lanes(&mut state, &inc, all);
-    let mut inp = StartIn::default();
-    for u in inp.u_pos.iter_mut().chain(inp.u_dir.iter_mut()) {
-        *u = avx::next_f32_lanes(&mut state, &inc, all);
-    }
+    let [u_light, p0, p1, d0, d1] = avx::draws::<5, 0>(&mut state, &inc, all);
+    let mut inp = StartIn { u_pos: [p0, p1], u_dir: [d0, d1], ..StartIn::default() };
     let mut simd = 0u32;
     let mut scalar = 0u32;
     // lanes without a triangle light read the zero row (their kernel output is not used)

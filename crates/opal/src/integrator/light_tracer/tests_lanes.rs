@@ -86,3 +86,32 @@ fn lane_masks_and_counters_match_the_scalar_loops() {
         }
     }
 }
+
+#[test]
+fn several_draws_at_once_are_the_scalar_numbers() {
+    if !std::arch::is_x86_feature_detected!("avx2") {
+        return;
+    }
+    let stream = RngStream::new(11, super::path::RNG_STREAM);
+    let mut rng = Rng::new(3, 3, 3);
+    for round in 0..5_000u64 {
+        let mut scalar: Vec<Rng> = (0..W as u64).map(|l| stream.rng(round * 31 + l)).collect();
+        let mut state: [u64; W] = std::array::from_fn(|l| scalar[l].state);
+        let inc: [u64; W] = std::array::from_fn(|l| scalar[l].inc);
+        let m = rng.next_u32() & 0xff;
+        // SAFETY: the CPU supports AVX2 (checked above).
+        let (got2, got5) =
+            unsafe { (avx::draws::<2, 1>(&mut state, &inc, m), avx::draws::<5, 0>(&mut state, &inc, m)) };
+        for (l, r) in scalar.iter_mut().enumerate() {
+            if m >> l & 1 == 0 {
+                assert_eq!(state[l], r.state, "lane {l}: no draw outside the mask");
+                continue;
+            }
+            r.next_f32();
+            let want: Vec<u32> = (0..7).map(|_| r.next_f32().to_bits()).collect();
+            let got: Vec<u32> = got2.iter().chain(&got5).map(|u| u[l].to_bits()).collect();
+            assert_eq!(got, want, "lane {l}");
+            assert_eq!(state[l], r.state, "lane {l}: state after eight draws");
+        }
+    }
+}

@@ -609,9 +609,7 @@ impl Wavefront {
                     }
                     // `Lambert::sample`: a number drawn for the generic sampler, then the direction sample
                     // (the same draws per lane as `Rng::next_f32`, eight lanes at a time)
-                    avx::next_f32_lanes(&mut ln.rng_state, &ln.rng_inc, alive);
-                    inp.u[0] = avx::next_f32_lanes(&mut ln.rng_state, &ln.rng_inc, alive);
-                    inp.u[1] = avx::next_f32_lanes(&mut ln.rng_state, &ln.rng_inc, alive);
+                    inp.u = avx::draws::<2, 1>(&mut ln.rng_state, &ln.rng_inc, alive);
                     alive = avx::scatter(&mut ln.rays, &inp, alive, &mut ln.ratio, tab.any_normals);
                     ln.kd_pi = v.kd_pi;
                     ln.bitmap = alive & v.bitmap;
