@@ -85,7 +85,9 @@ pub(super) fn cosine_hemisphere_lanes(
     let at_centre = ox.eq(zero) & oy.eq(zero);
     let wide_x = ox.abs().gt(oy.abs());
     let r = wide_x.select(ox, oy);
-    let turns = wide_x.select((oy / ox) * 0.125, 0.25 - (ox / oy) * 0.125);
+    // `oy / ox` or `ox / oy`: one division of the operands each lane's branch divides
+    let eighth = (wide_x.select(oy, ox) / r) * 0.125;
+    let turns = wide_x.select(eighth, 0.25 - eighth);
     let (sn, cs) = wide::sincos_2pi(turns);
     let dx = at_centre.select(zero, r * cs);
     let dy = at_centre.select(zero, r * sn);
