@@ -382,8 +382,12 @@ impl<'a> Lanes<'a> {
         if let (true, Some(Texture::Bitmap(b))) = (one_texture, first)
             && lanes_take(b)
         {
+            // looked up now: measured faster than a prefetch now and the lookup at the
+            // settling (the texels are mostly cache hits; the second tap computation costs more)
             // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
-            todo &= !unsafe { avx::bilinear_prefetch(&b.image, uv, todo) };
+            let done = unsafe { avx::bilinear_lanes(&b.image, uv, todo, &mut self.kd_pi) };
+            self.bitmap &= !done;
+            todo &= !done;
         }
         for l in lanes_of(todo) {
             let tex = self.tex[l].expect("bitmap lanes hold their texture");
