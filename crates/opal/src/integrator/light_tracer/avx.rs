@@ -68,6 +68,16 @@ pub(super) fn increment(a: &mut [i32; W], m: u32) {
     }
 }
 
+/// `dst[c][l] = src[c][l]` in the lanes `l` of `m` (three channels).
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn blend_lanes(dst: &mut [[f32; W]; 3], src: &[[f32; W]; 3], m: u32) {
+    let lm = lane_mask(m);
+    for (d, s) in dst.iter_mut().zip(src) {
+        st(d, _mm256_blendv_ps(ld(d), ld(s), lm));
+    }
+}
+
 /// [`crate::sampling::Rng::next_f32`] of the eight generators `(state, inc)` whose lane is in
 /// `m` (the others keep their state; their numbers are meaningless): the same 64-bit
 /// arithmetic (the product modulo 2⁶⁴ from three 32×32-bit products), output permutation
@@ -581,24 +591,4 @@ fn bilinear_taps(
     // SAFETY: 8 i32, unaligned store.
     unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), idx) };
     Some((done, at, wt))
-}
-
-/// Prefetches the cache lines the bilinear taps of the lanes in `m` read (both rows, both
-/// ends of each row's two pixels, as [`bilinear_lanes`] will read them); returns the lanes
-/// done (the others: see `bilinear_lanes`). No effect on results.
-#[target_feature(enable = "avx2")]
-#[inline]
-pub(super) fn bilinear_prefetch(img: &crate::image::Image, uv: &[[f32; W]; 2], m: u32) -> u32 {
-    let Some((done, at, _)) = bilinear_taps(img, uv, m) else { return 0 };
-    let data = img.data.as_ptr().cast::<f32>();
-    let row = 3 * img.width;
-    for l in super::wavefront::lanes_of(done) {
-        // (inside: see `bilinear_lanes`; `wrapping_add` as the addresses are only hints)
-        let p = data.wrapping_add(at[l] as usize);
-        for q in [p, p.wrapping_add(5), p.wrapping_add(row), p.wrapping_add(row + 5)] {
-            // (a prefetch never faults)
-            _mm_prefetch::<_MM_HINT_T0>(q.cast());
-        }
-    }
-    done
 }

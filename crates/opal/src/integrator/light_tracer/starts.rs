@@ -10,10 +10,10 @@
 use super::avx;
 #[cfg(target_arch = "x86_64")]
 use super::path::start_path;
-use super::wavefront::{W, cosine_hemisphere_lanes, each3, offset_lanes};
 #[cfg(target_arch = "x86_64")]
-use super::wavefront::{lanes_of, mask};
-use crate::sampling::{Rng, RngStream};
+use super::wavefront::mask;
+use super::wavefront::{W, cosine_hemisphere_lanes, each3, offset_lanes};
+use crate::sampling::RngStream;
 use crate::scene::Scene;
 
 /// Offsets in a [`LightRow`]: the corners `p[k][c]` at `L_P + 3k + c`, then three floats each
@@ -137,7 +137,9 @@ pub(super) struct StartBlock {
     pub(super) o: [[f32; W]; 3],
     pub(super) d: [[f32; W]; 3],
     pub(super) beta: [[f32; W]; 3],
-    pub(super) rng: [Rng; W],
+    /// The generators (state, increment: see [`crate::sampling::Rng`]), as structure of arrays.
+    pub(super) rng_state: [u64; W],
+    pub(super) rng_inc: [u64; W],
     pub(super) valid: u32,
 }
 
@@ -147,7 +149,8 @@ impl StartBlock {
             o: [[0.0; W]; 3],
             d: [[0.0; W]; 3],
             beta: [[0.0; W]; 3],
-            rng: std::array::from_fn(|_| stream.rng(0)),
+            rng_state: [stream.rng(0).state; W],
+            rng_inc: [stream.rng(0).inc; W],
             valid: 0,
         }
     }
@@ -175,6 +178,8 @@ pub(super) fn starts(
     let mut inp = StartIn { u_pos: [p0, p1], u_dir: [d0, d1], ..StartIn::default() };
     let mut simd = 0u32;
     let mut scalar = 0u32;
+    // (the lanes of other lights overwrite theirs)
+    (out.rng_state, out.rng_inc) = (state, inc);
     // lanes without a triangle light read the zero row (their kernel output is not used)
     let mut row_of = [lights.rows.len() - 1; W];
     for (l, i) in range.enumerate() {
@@ -186,26 +191,21 @@ pub(super) fn starts(
                     out.d[c][l] = st.ray.d[c];
                     out.beta[c][l] = st.beta[c];
                 }
-                out.rng[l] = st.rng;
+                (out.rng_state[l], out.rng_inc[l]) = (st.rng.state, st.rng.inc);
                 scalar |= 1 << l;
             }
             continue;
         }
         row_of[l] = li;
         inp.pmf[l] = pmf;
-        out.rng[l] = Rng { state: state[l], inc: inc[l] };
         simd |= 1 << l;
     }
     light_lanes(&lights.rows, &row_of, &mut inp);
     let o = avx::start_kernel(&inp);
     let valid = simd & mask(|l| o.valid[l] != 0);
-    for l in lanes_of(valid) {
-        for c in 0..3 {
-            out.o[c][l] = o.o[c][l];
-            out.d[c][l] = o.d[c][l];
-            out.beta[c][l] = o.beta[c][l];
-        }
-    }
+    avx::blend_lanes(&mut out.o, &o.o, valid);
+    avx::blend_lanes(&mut out.d, &o.d, valid);
+    avx::blend_lanes(&mut out.beta, &o.beta, valid);
     out.valid = valid | scalar;
 }
 

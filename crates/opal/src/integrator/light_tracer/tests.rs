@@ -437,8 +437,7 @@ fn bilinear_lanes_give_the_bits_of_texture_eval() {
     // `avx::bilinear_lanes` against `Texture::eval(uv) · INV_PI` for random images (1×1 to
     // 37×5, both wrap modes that index differently) and uvs inside, on and beyond the
     // borders, non-finite: the lanes it does are bit for bit the scalar values, every lane it
-    // does is in the mask, and it does every lane whose four corners are inside the image;
-    // `avx::bilinear_prefetch` takes the same lanes.
+    // does is in the mask, and it does every lane whose four corners are inside the image.
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         use crate::image::Image;
@@ -475,9 +474,6 @@ fn bilinear_lanes_give_the_bits_of_texture_eval() {
                     // SAFETY: the CPU supports AVX2 (checked above).
                     let done = unsafe { avx::bilinear_lanes(&image, &uv, m, &mut kd) };
                     assert_eq!(done & !m, 0, "only lanes of the mask");
-                    // the prefetch of the same taps: the same lanes
-                    // SAFETY: as above.
-                    assert_eq!(unsafe { avx::bilinear_prefetch(&image, &uv, m) }, done, "prefetched lanes");
                     for l in 0..W {
                         let (u, v) = (uv[0][l], uv[1][l]);
                         let (x, y) = ((u * w as f32 - 0.5).floor(), (v * h as f32 - 0.5).floor());

@@ -362,12 +362,13 @@ pub(super) fn lanes_of(mut m: u32) -> impl Iterator<Item = usize> {
 
 impl<'a> Lanes<'a> {
     /// Takes the vertices' uvs and records the texture of each lane in `bitmap` (triangle rows
-    /// `prim`), then prefetches the lines its lookup in [`Lanes::settle`] will read: the
-    /// bilinear taps ([`avx::bilinear_prefetch`]) when the lanes share one bilinear bitmap,
-    /// else [`Texture::prefetch`]'s.
+    /// `prim`). When the lanes share one bilinear bitmap read in lanes ([`lanes_take`]), looks
+    /// their albedos up now ([`avx::bilinear_lanes`]) and takes them out of `bitmap`; the
+    /// others' texels are prefetched ([`Texture::prefetch`]) for their lookup in
+    /// [`Lanes::settle`].
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn prefetch_bitmaps(&mut self, tab: &LambertTable<'a>, prim: &[u32; W], uv: &[[f32; W]; 2]) {
+    fn bitmap_albedos(&mut self, tab: &LambertTable<'a>, prim: &[u32; W], uv: &[[f32; W]; 2]) {
         self.uv = *uv;
         let mut first: Option<&Texture> = None;
         let mut one_texture = true;
@@ -382,8 +383,8 @@ impl<'a> Lanes<'a> {
         if let (true, Some(Texture::Bitmap(b))) = (one_texture, first)
             && lanes_take(b)
         {
-            // looked up now: measured faster than a prefetch now and the lookup at the
-            // settling (the texels are mostly cache hits; the second tap computation costs more)
+            // looked up now: measured 0.97x the pass's CPU-s of a prefetch now and the lookup
+            // at the settling (the texels are mostly cache hits; the taps are computed once)
             // SAFETY: the wavefront runs on CPUs with AVX2 only (`Wavefront::available`).
             let done = unsafe { avx::bilinear_lanes(&b.image, uv, todo, &mut self.kd_pi) };
             self.bitmap &= !done;
@@ -395,7 +396,7 @@ impl<'a> Lanes<'a> {
         }
     }
 
-    /// Puts a new path into lane `l`.
+    /// Puts a new path into lane `l`: the start `k` of block `b`.
     #[inline]
     fn start(&mut self, l: usize, b: &StartBlock, k: usize) {
         for c in 0..3 {
@@ -406,8 +407,8 @@ impl<'a> Lanes<'a> {
         self.rays.tmax[l] = f32::INFINITY;
         self.b0[l] = Spectrum([b.beta[0][k], b.beta[1][k], b.beta[2][k]]).max_component();
         self.depth[l] = 0;
-        self.rng_state[l] = b.rng[k].state;
-        self.rng_inc[l] = b.rng[k].inc;
+        self.rng_state[l] = b.rng_state[k];
+        self.rng_inc[l] = b.rng_inc[k];
         self.active |= 1 << l;
         self.pending &= !(1 << l);
         self.bitmap &= !(1 << l);
@@ -562,8 +563,9 @@ impl Wavefront {
                 }
             }
             // Two rounds over the sets: first the vertices (deposits, scattering, bitmap
-            // prefetches), then the early roulette and the refills, so that a bitmap lookup of
-            // the early roulette finds its texels prefetched while the other sets were scattered.
+            // albedos or their prefetches), then the early roulette and the refills, so that a
+            // bitmap lookup left to the early roulette finds its texels prefetched while the
+            // other sets were scattered.
             // Same draws per path, same refill order (set by set, lane by lane): same paths.
             let mut alive_of = [0u32; SETS];
             for ((ln, hits), alive_out) in lns.iter_mut().zip(&all_hits).zip(&mut alive_of) {
@@ -619,7 +621,7 @@ impl Wavefront {
                     alive = avx::scatter(&mut ln.rays, &inp, alive, &mut ln.ratio, tab.any_normals);
                     ln.kd_pi = v.kd_pi;
                     ln.bitmap = alive & v.bitmap;
-                    ln.prefetch_bitmaps(tab, &prim, &v.uv);
+                    ln.bitmap_albedos(tab, &prim, &v.uv);
                 }
                 ln.pending = alive;
                 *alive_out = alive;
