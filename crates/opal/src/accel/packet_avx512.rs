@@ -180,10 +180,10 @@ impl PacketAccel {
         // as the AVX2 kernel: inactive lanes never hit; the others with an exactly-zero edge
         // function take the scalar test
         for (p, (rays, h)) in [a, b].into_iter().zip(h.iter_mut()).enumerate() {
-            for l in 0..PACKET {
-                if zany & (1 << (PACKET * p + l)) == 0 {
-                    continue;
-                }
+            let mut lanes = (zany as u32 >> (PACKET * p)) & 0xff;
+            while lanes != 0 {
+                let l = lanes.trailing_zeros() as usize;
+                lanes &= lanes - 1;
                 if rays.tmax[l] > 0.0 {
                     h.set(l, self.brute.intersect(&rays.ray(l)));
                 } else {

@@ -55,6 +55,19 @@ pub(super) fn at_least(a: &[i32; W], k: i32) -> u32 {
     !bits(_mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_set1_epi32(k), v))) & 0xff
 }
 
+/// `a[l]` (as `u32`) in the lanes of `m`, 0 in the others.
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) fn select_u32(a: &[i32; W], m: u32) -> [u32; W] {
+    let mut out = [0u32; W];
+    // SAFETY: 8 i32 / u32, unaligned load and store.
+    unsafe {
+        let v = _mm256_and_si256(_mm256_loadu_si256(a.as_ptr().cast()), _mm256_castps_si256(lane_mask(m)));
+        _mm256_storeu_si256(out.as_mut_ptr().cast(), v);
+    }
+    out
+}
+
 /// `a[l] += 1` in the lanes of `m`.
 #[target_feature(enable = "avx2")]
 #[inline]

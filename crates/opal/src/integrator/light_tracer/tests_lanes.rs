@@ -77,6 +77,11 @@ fn lane_masks_and_counters_match_the_scalar_loops() {
         // SAFETY: the CPU supports AVX2 (checked above).
         assert_eq!(unsafe { avx::at_least(&a, k) }, want, "{a:?} ≥ {k}");
         let m = rng.next_u32() & 0xff;
+        // SAFETY: as above.
+        let sel = unsafe { avx::select_u32(&a, m) };
+        for l in 0..W {
+            assert_eq!(sel[l], if m >> l & 1 == 1 { a[l] as u32 } else { 0 }, "lane {l}");
+        }
         let mut b = a;
         // SAFETY: as above.
         unsafe { avx::increment(&mut b, m) };

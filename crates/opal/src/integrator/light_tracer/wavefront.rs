@@ -580,8 +580,8 @@ impl Wavefront {
                 // the new vertices: triangle data, deposits, direction samples, scattering
                 if alive != 0 {
                     avx::increment(&mut ln.depth, alive);
-                    let prim: [u32; W] =
-                        std::array::from_fn(|l| if alive & (1 << l) != 0 { hits.prim[l] as u32 } else { 0 });
+                    // the hit triangles (0 in the other lanes)
+                    let prim = avx::select_u32(&hits.prim, alive);
                     let v = avx::vertices(rows, &prim, hits, &ln.rays.d, tab.any_normals, &mut inp);
                     let front = alive & v.front;
                     if front != 0 {
