@@ -415,41 +415,52 @@ pub(super) fn deposit_values(
     out
 }
 
-/// Scatters the lanes in `alive` ([`scatter_lanes`]; `normals` = some triangle of
-/// the scene has corner normals) and moves their rays to the sampled directions; returns
-/// the lanes whose sample is valid and writes their `ratio`.
+/// Scatters the lanes in `alive` of two sets ([`scatter_lanes`]; `normals` = some triangle
+/// of the scene has corner normals) and moves their rays to the sampled directions; returns
+/// the lanes whose sample is valid and writes their `ratio`. Two sets in one kernel: their
+/// two dependency chains (divisions, square roots, the sine polynomial) overlap.
 #[target_feature(enable = "avx2")]
 #[inline]
-pub(super) fn scatter(
-    rays: &mut RayPacket,
-    inp: &ScatterIn,
-    alive: u32,
-    ratio: &mut [f32; W],
+pub(super) fn scatter2(
+    rays: [&mut RayPacket; 2],
+    inp: [&ScatterIn; 2],
+    alive: [u32; 2],
+    ratio: [&mut [f32; W]; 2],
     normals: bool,
-) -> u32 {
-    let out = if normals { kernel::<true>(rays, inp) } else { kernel::<false>(rays, inp) };
-    // SAFETY: 8 u32, unaligned load.
-    let valid = unsafe { _mm256_loadu_ps(out.valid.as_ptr().cast()) };
-    let am = _mm256_and_ps(lane_mask(alive), valid);
-    for c in 0..3 {
-        let o = _mm256_blendv_ps(ld(&rays.o[c]), ld(&out.o[c]), am);
-        st(&mut rays.o[c], o);
-        let d = _mm256_blendv_ps(ld(&rays.d[c]), ld(&out.d[c]), am);
-        st(&mut rays.d[c], d);
+) -> [u32; 2] {
+    let out = if normals {
+        kernel2::<true>([&*rays[0], &*rays[1]], inp)
+    } else {
+        kernel2::<false>([&*rays[0], &*rays[1]], inp)
+    };
+    let mut valid_out = [0; 2];
+    for (((rays, out), (alive, ratio)), v) in
+        rays.into_iter().zip(out).zip(alive.into_iter().zip(ratio)).zip(&mut valid_out)
+    {
+        // SAFETY: 8 u32, unaligned load.
+        let valid = unsafe { _mm256_loadu_ps(out.valid.as_ptr().cast()) };
+        let am = _mm256_and_ps(lane_mask(alive), valid);
+        for c in 0..3 {
+            let o = _mm256_blendv_ps(ld(&rays.o[c]), ld(&out.o[c]), am);
+            st(&mut rays.o[c], o);
+            let d = _mm256_blendv_ps(ld(&rays.d[c]), ld(&out.d[c]), am);
+            st(&mut rays.d[c], d);
+        }
+        *ratio = out.ratio;
+        *v = bits(am);
     }
-    *ratio = out.ratio;
-    bits(am)
+    valid_out
 }
 
-/// [`scatter_lanes`] compiled with AVX2, kept out of line (the lane loops vectorise
-/// reliably in a function of their own).
+/// [`scatter_lanes`] of two sets compiled with AVX2, kept out of line (the lane loops
+/// vectorise reliably in a function of their own).
 #[target_feature(enable = "avx2")]
 #[inline(never)]
-fn kernel<const NORMALS: bool>(rays: &RayPacket, inp: &ScatterIn) -> ScatterOut {
-    scatter_lanes::<NORMALS>(rays, inp)
+fn kernel2<const NORMALS: bool>(rays: [&RayPacket; 2], inp: [&ScatterIn; 2]) -> [ScatterOut; 2] {
+    [scatter_lanes::<NORMALS>(rays[0], inp[0]), scatter_lanes::<NORMALS>(rays[1], inp[1])]
 }
 
-/// [`start_lanes`] compiled with AVX2, kept out of line like [`kernel`].
+/// [`start_lanes`] compiled with AVX2, kept out of line like [`kernel2`].
 #[target_feature(enable = "avx2")]
 #[inline(never)]
 pub(super) fn start_kernel(inp: &StartIn) -> StartOut {

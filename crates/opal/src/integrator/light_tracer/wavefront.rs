@@ -523,7 +523,7 @@ impl Wavefront {
             }
         }
         let rows = &tab.rows[..];
-        let mut inp = ScatterIn::default();
+        let mut inps = [ScatterIn::default(); SETS];
         let mut rays = [RayPacket::default(); SETS];
         let mut all_hits = [PacketHits::NONE; SETS];
         while lns.iter().any(|ln| ln.active != 0) {
@@ -567,11 +567,14 @@ impl Wavefront {
             // bitmap lookup left to the early roulette finds its texels prefetched while the
             // other sets were scattered.
             // Same draws per path, same refill order (set by set, lane by lane): same paths.
+            // (the scattering of two sets at a time: `avx::scatter2`)
             let mut alive_of = [0u32; SETS];
-            for ((ln, hits), alive_out) in lns.iter_mut().zip(&all_hits).zip(&mut alive_of) {
+            let mut verts: [Option<([u32; W], VertexLanes)>; SETS] = [None; SETS];
+            for (k, (ln, hits)) in lns.iter_mut().zip(&all_hits).enumerate() {
                 if ln.active == 0 {
                     continue;
                 }
+                let inp = &mut inps[k];
                 // A lane whose ray missed ends (its pending weight and roulette change nothing).
                 let hit = ln.active & avx::at_least(&hits.prim, 0);
                 // `vertex`: the pending weights (bitmap albedos looked up now) of the lanes that hit
@@ -582,7 +585,7 @@ impl Wavefront {
                     avx::increment(&mut ln.depth, alive);
                     // the hit triangles (0 in the other lanes)
                     let prim = avx::select_u32(&hits.prim, alive);
-                    let v = avx::vertices(rows, &prim, hits, &ln.rays.d, tab.any_normals, &mut inp);
+                    let v = avx::vertices(rows, &prim, hits, &ln.rays.d, tab.any_normals, inp);
                     let front = alive & v.front;
                     if front != 0 {
                         let dv = if tab.vector_deposits {
@@ -618,13 +621,36 @@ impl Wavefront {
                     // `Lambert::sample`: a number drawn for the generic sampler, then the direction sample
                     // (the same draws per lane as `Rng::next_f32`, eight lanes at a time)
                     inp.u = avx::draws::<2, 1>(&mut ln.rng_state, &ln.rng_inc, alive);
-                    alive = avx::scatter(&mut ln.rays, &inp, alive, &mut ln.ratio, tab.any_normals);
+                    verts[k] = Some((prim, v));
+                }
+                alive_of[k] = alive;
+            }
+            for (k, pair) in lns.chunks_exact_mut(2).enumerate() {
+                let (k0, k1) = (2 * k, 2 * k + 1);
+                if verts[k0].is_none() && verts[k1].is_none() {
+                    continue;
+                }
+                let [a, b] = pair else { unreachable!("pairs") };
+                let (alive0, alive1) = (alive_of[k0], alive_of[k1]);
+                [alive_of[k0], alive_of[k1]] = avx::scatter2(
+                    [&mut a.rays, &mut b.rays],
+                    [&inps[k0], &inps[k1]],
+                    [alive0, alive1],
+                    [&mut a.ratio, &mut b.ratio],
+                    tab.any_normals,
+                );
+            }
+            for (k, ln) in lns.iter_mut().enumerate() {
+                if ln.active == 0 {
+                    continue;
+                }
+                let alive = alive_of[k];
+                if let Some((prim, v)) = &verts[k] {
                     ln.kd_pi = v.kd_pi;
                     ln.bitmap = alive & v.bitmap;
-                    ln.bitmap_albedos(tab, &prim, &v.uv);
+                    ln.bitmap_albedos(tab, prim, &v.uv);
                 }
                 ln.pending = alive;
-                *alive_out = alive;
             }
             for (ln, &alive) in lns.iter_mut().zip(&alive_of) {
                 if ln.active == 0 {
