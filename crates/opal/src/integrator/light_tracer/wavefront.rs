@@ -217,6 +217,10 @@ pub(super) const ROW_FACTOR: usize = 30;
 pub(super) const FLAG_TWO_SIDED: u32 = 1;
 pub(super) const FLAG_BITMAP: u32 = 2;
 
+/// Bytes of rows beyond which the hit triangles' rows are prefetched after each trace (half an
+/// L2 cache: the Cornell box's 32 rows stay in L1 and skip the prefetches).
+const PREFETCH_ROWS_BYTES: usize = 512 << 10;
+
 /// The wavefront's triangle table: rows, the bitmap of each shape with a bitmap
 /// reflectance, and whether any triangle has corner normals.
 pub(super) struct LambertTable<'a> {
@@ -227,6 +231,9 @@ pub(super) struct LambertTable<'a> {
     /// Whether every map is small enough for [`avx::deposit_values`] (sizes exact in f32,
     /// `3·w·h` in i32); otherwise every deposit takes [`deposit`].
     vector_deposits: bool,
+    /// Whether the rows exceed [`PREFETCH_ROWS_BYTES`]: the hit triangles' rows are then
+    /// prefetched right after the trace.
+    prefetch_rows: bool,
     /// The scene's lights as the path starts need them ([`light_rows`]).
     lights: LightRows,
 }
@@ -273,7 +280,15 @@ impl<'a> LambertTable<'a> {
                 && p.height <= 1 << 16
                 && 3 * p.width as u64 * p.height as u64 <= i32::MAX as u64
         });
-        Some(LambertTable { rows, tex, any_normals, vector_deposits, lights: light_rows(scene) })
+        let prefetch_rows = rows.len() * std::mem::size_of::<Row>() > PREFETCH_ROWS_BYTES;
+        Some(LambertTable {
+            rows,
+            tex,
+            any_normals,
+            vector_deposits,
+            prefetch_rows,
+            lights: light_rows(scene),
+        })
     }
 }
 
@@ -559,6 +574,17 @@ impl Wavefront {
                         for l in lanes_of(ln.active) {
                             h.set(l, scene.intersect_hit(&ln.rays.ray(l)));
                         }
+                    }
+                }
+            }
+            // the hit triangles' rows of all sets, prefetched before the first set reads its rows
+            // (scenes of many triangles: their rows are far beyond the caches)
+            if tab.prefetch_rows {
+                for (hits, ln) in all_hits.iter().zip(&lns) {
+                    for l in lanes_of(ln.active & avx::at_least(&hits.prim, 0)) {
+                        let row = &rows[hits.prim[l] as usize].0;
+                        crate::simd::prefetch(&row[0]);
+                        crate::simd::prefetch(&row[16]);
                     }
                 }
             }
