@@ -491,7 +491,21 @@ impl Wavefront {
         accel: Option<&Accel>,
     ) {
         let (scene, sampler, s) = (ctx.scene, ctx.sampler, ctx.s);
-        let mut lns: [Lanes; SETS] = std::array::from_fn(|_| Lanes::new());
+        let mut lns: [Lanes; SETS] = std::array::from_fn(|_| Lanes {
+            rays: RayPacket::default(),
+            rng_state: [0; W],
+            rng_inc: [0; W],
+            beta: [[0.0; W]; 3],
+            b0: [0.0; W],
+            depth: [0; W],
+            pending: 0,
+            bitmap: 0,
+            ratio: [0.0; W],
+            kd_pi: [[0.0; W]; 3],
+            tex: [None; W],
+            uv: [[0.0; W]; 2],
+            active: 0,
+        });
         let mut next = paths.start;
         // the starts of the next paths, prepared W at a time; `taken` of them handed out
         let mut block = StartBlock::new(stream);
@@ -528,7 +542,41 @@ impl Wavefront {
         let mut rays = [RayPacket::default(); SETS];
         let mut all_hits = [PacketHits::NONE; SETS];
         while lns.iter().any(|ln| ln.active != 0) {
-            trace_sets(accel, scene, &lns, &mut rays, &mut all_hits);
+            match accel {
+                // (inlined into this AVX2 function)
+                // two sets per call where AVX-512 was detected (the same hits, half the work
+                // per ray: `accel/packet_avx512.rs`)
+                Some(Accel::Tiny { packet, .. }) if packet.avx512() => {
+                    for (h, ln) in all_hits.chunks_exact_mut(2).zip(lns.chunks_exact(2)) {
+                        if ln[0].active | ln[1].active != 0 {
+                            // SAFETY: the CPU supports AVX-512 (detected when `packet` was built).
+                            [h[0], h[1]] = unsafe { packet.intersect16_avx512(&ln[0].rays, &ln[1].rays) };
+                        }
+                    }
+                }
+                Some(Accel::Tiny { packet, .. }) => {
+                    for (h, ln) in all_hits.iter_mut().zip(&lns) {
+                        if ln.active != 0 {
+                            *h = packet.intersect_avx2(&ln.rays);
+                        }
+                    }
+                }
+                // the split structure gathers the rays entering its BVH from all sets
+                Some(a) => {
+                    for (r, ln) in rays.iter_mut().zip(&lns) {
+                        *r = ln.rays;
+                    }
+                    a.intersect8_many(&rays, &mut all_hits)
+                }
+                None => {
+                    for (h, ln) in all_hits.iter_mut().zip(&lns) {
+                        *h = PacketHits::NONE;
+                        for l in lanes_of(ln.active) {
+                            h.set(l, scene.intersect_hit(&ln.rays.ray(l)));
+                        }
+                    }
+                }
+            }
             // the hit triangles' rows of all sets, prefetched before the first set reads its rows
             // (scenes of many triangles: their rows are far beyond the caches)
             if tab.prefetch_rows {
@@ -552,7 +600,56 @@ impl Wavefront {
                 if ln.active == 0 {
                     continue;
                 }
-                (alive_of[k], verts[k]) = ln.vertex(ctx, tab, hits, &mut inps[k]);
+                let inp = &mut inps[k];
+                // A lane whose ray missed ends (its pending weight and roulette change nothing).
+                let hit = ln.active & avx::at_least(&hits.prim, 0);
+                // `vertex`: the pending weights (bitmap albedos looked up now) of the lanes that hit
+                // (lanes facing the roulette settled theirs before the trace, see below)
+                let mut alive = hit & !ln.settle(ln.pending & hit, s.rr_depth);
+                // the new vertices: triangle data, deposits, direction samples, scattering
+                if alive != 0 {
+                    avx::increment(&mut ln.depth, alive);
+                    // the hit triangles (0 in the other lanes)
+                    let prim = avx::select_u32(&hits.prim, alive);
+                    let v = avx::vertices(rows, &prim, hits, &ln.rays.d, tab.any_normals, inp);
+                    let front = alive & v.front;
+                    if front != 0 {
+                        let dv = if tab.vector_deposits {
+                            avx::deposit_values(rows, &prim, &v.uv, &ln.beta, &ln.depth)
+                        } else {
+                            DepositLanes {
+                                index: [0; W],
+                                value: [[0; W]; 3],
+                                units: [0; W],
+                                map: [0; W],
+                                small: 0,
+                                target: 0,
+                            }
+                        };
+                        // `deposit` of the lanes whose units fit the queue, straight into the sink
+                        // (first-hit deposits only when asked for)
+                        let quick = front & dv.small & dv.target;
+                        let skip = if s.direct { 0 } else { quick & !avx::at_least(&ln.depth, 2) };
+                        for l in lanes_of(quick & !skip) {
+                            let value = [dv.value[0][l], dv.value[1][l], dv.value[2][l]];
+                            ctx.sink.push_small(dv.map[l] as u32, dv.index[l] as u32, value, dv.units[l]);
+                        }
+                        for l in lanes_of(front & !quick) {
+                            let pr = &ctx.prims[prim[l] as usize];
+                            let beta = Spectrum([ln.beta[0][l], ln.beta[1][l], ln.beta[2][l]]);
+                            let uv = Vec2::new(v.uv[0][l], v.uv[1][l]);
+                            deposit(ctx.sink, ctx.bad, s, pr, uv, beta, ln.depth[l]);
+                        }
+                    }
+                    if s.max_depth >= 0 {
+                        alive &= !avx::at_least(&ln.depth, s.max_depth);
+                    }
+                    // `Lambert::sample`: a number drawn for the generic sampler, then the direction sample
+                    // (the same draws per lane as `Rng::next_f32`, eight lanes at a time)
+                    inp.u = avx::draws::<2, 1>(&mut ln.rng_state, &ln.rng_inc, alive);
+                    verts[k] = Some((prim, v));
+                }
+                alive_of[k] = alive;
             }
             for (k, pair) in lns.chunks_exact_mut(2).enumerate() {
                 let (k0, k1) = (2 * k, 2 * k + 1);
@@ -603,157 +700,6 @@ impl Wavefront {
                     refill(ln, l);
                 }
             }
-        }
-    }
-}
-
-/// The closest hits of the sets' rays into `hits` (inactive sets keep theirs): two sets per
-/// 16-lane call where AVX-512 was detected (the same hits, half the work per ray:
-/// `accel/packet_avx512.rs`), the split structure's rays gathered from all sets (through
-/// `rays`), one ray at a time without a structure.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn trace_sets(
-    accel: Option<&Accel>,
-    scene: &Scene,
-    lns: &[Lanes; SETS],
-    rays: &mut [RayPacket; SETS],
-    hits: &mut [PacketHits; SETS],
-) {
-    match accel {
-        Some(Accel::Tiny { packet, .. }) if packet.avx512() => {
-            for (h, ln) in hits.chunks_exact_mut(2).zip(lns.chunks_exact(2)) {
-                if ln[0].active | ln[1].active != 0 {
-                    // SAFETY: the CPU supports AVX-512 (detected when `packet` was built).
-                    [h[0], h[1]] = unsafe { packet.intersect16_avx512(&ln[0].rays, &ln[1].rays) };
-                }
-            }
-        }
-        Some(Accel::Tiny { packet, .. }) => {
-            for (h, ln) in hits.iter_mut().zip(lns) {
-                if ln.active != 0 {
-                    *h = packet.intersect_avx2(&ln.rays);
-                }
-            }
-        }
-        Some(a) => {
-            for (r, ln) in rays.iter_mut().zip(lns) {
-                *r = ln.rays;
-            }
-            a.intersect8_many(rays, hits)
-        }
-        None => {
-            for (h, ln) in hits.iter_mut().zip(lns) {
-                *h = PacketHits::NONE;
-                for l in lanes_of(ln.active) {
-                    h.set(l, scene.intersect_hit(&ln.rays.ray(l)));
-                }
-            }
-        }
-    }
-}
-
-impl<'a> Lanes<'a> {
-    /// One set's vertices (`vertex` of [`trace_path`] per lane): the pending weights and
-    /// roulette of the lanes that hit ([`Lanes::settle`]), then for the lanes that go on the
-    /// triangle data (`inp`, besides the direction samples), the deposits and the direction
-    /// samples (`inp.u`). Returns the lanes that go on and, when any, the hit triangles (0 in
-    /// the other lanes) with their vertex data.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    #[inline]
-    fn vertex(
-        &mut self,
-        ctx: &mut PathCtx<'a, '_>,
-        tab: &LambertTable<'a>,
-        hits: &PacketHits,
-        inp: &mut ScatterIn,
-    ) -> (u32, Option<([u32; W], VertexLanes)>) {
-        let (s, rows) = (ctx.s, &tab.rows[..]);
-        // A lane whose ray missed ends (its pending weight and roulette change nothing).
-        let hit = self.active & avx::at_least(&hits.prim, 0);
-        // `vertex`: the pending weights (bitmap albedos looked up now) of the lanes that hit
-        // (lanes facing the roulette settled theirs before the trace, see `run_avx2`)
-        let mut alive = hit & !self.settle(self.pending & hit, s.rr_depth);
-        if alive == 0 {
-            return (0, None);
-        }
-        // the new vertices: triangle data, deposits, direction samples
-        avx::increment(&mut self.depth, alive);
-        // the hit triangles (0 in the other lanes)
-        let prim = avx::select_u32(&hits.prim, alive);
-        let v = avx::vertices(rows, &prim, hits, &self.rays.d, tab.any_normals, inp);
-        let front = alive & v.front;
-        if front != 0 {
-            self.deposit(ctx, tab, &prim, &v, front);
-        }
-        if s.max_depth >= 0 {
-            alive &= !avx::at_least(&self.depth, s.max_depth);
-        }
-        // `Lambert::sample`: a number drawn for the generic sampler, then the direction sample
-        // (the same draws per lane as `Rng::next_f32`, eight lanes at a time)
-        inp.u = avx::draws::<2, 1>(&mut self.rng_state, &self.rng_inc, alive);
-        (alive, Some((prim, v)))
-    }
-
-    /// The deposits of the lanes in `front` (vertices `v` on triangles `prim`): the lanes whose
-    /// units fit the queue straight into the sink (first-hit deposits only when asked for), the
-    /// others through [`deposit`].
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    #[inline]
-    fn deposit(
-        &self,
-        ctx: &mut PathCtx<'a, '_>,
-        tab: &LambertTable<'a>,
-        prim: &[u32; W],
-        v: &VertexLanes,
-        front: u32,
-    ) {
-        let s = ctx.s;
-        let dv = if tab.vector_deposits {
-            avx::deposit_values(&tab.rows, prim, &v.uv, &self.beta, &self.depth)
-        } else {
-            DepositLanes {
-                index: [0; W],
-                value: [[0; W]; 3],
-                units: [0; W],
-                map: [0; W],
-                small: 0,
-                target: 0,
-            }
-        };
-        let quick = front & dv.small & dv.target;
-        let skip = if s.direct { 0 } else { quick & !avx::at_least(&self.depth, 2) };
-        for l in lanes_of(quick & !skip) {
-            let value = [dv.value[0][l], dv.value[1][l], dv.value[2][l]];
-            ctx.sink.push_small(dv.map[l] as u32, dv.index[l] as u32, value, dv.units[l]);
-        }
-        for l in lanes_of(front & !quick) {
-            let pr = &ctx.prims[prim[l] as usize];
-            let beta = Spectrum([self.beta[0][l], self.beta[1][l], self.beta[2][l]]);
-            let uv = Vec2::new(v.uv[0][l], v.uv[1][l]);
-            deposit(ctx.sink, ctx.bad, s, pr, uv, beta, self.depth[l]);
-        }
-    }
-
-    /// Empty lanes (no path).
-    fn new() -> Lanes<'a> {
-        Lanes {
-            rays: RayPacket::default(),
-            rng_state: [0; W],
-            rng_inc: [0; W],
-            beta: [[0.0; W]; 3],
-            b0: [0.0; W],
-            depth: [0; W],
-            pending: 0,
-            bitmap: 0,
-            ratio: [0.0; W],
-            kd_pi: [[0.0; W]; 3],
-            tex: [None; W],
-            uv: [[0.0; W]; 2],
-            active: 0,
         }
     }
 }
