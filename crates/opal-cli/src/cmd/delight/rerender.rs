@@ -2,7 +2,7 @@
 //! previews and error maps written, and each object's region judged against the photo on its
 //! pure, eroded pixels, with the re-render's own Monte-Carlo noise; the samples per view raised
 //! until the noisiest judged region meets a target. Tests: `tests` below; the CLI tests
-//! `tests/delight.rs` (`default_working_size_and_rerender_noise`, the region checks).
+//! `tests/delight_inputs.rs` (`default_working_size_and_rerender_noise`, the region checks).
 
 use super::contact::ContactAccumulator;
 use super::{DelightArgs, exr, finite_or_null, html, png};

@@ -7,7 +7,7 @@
 //! mean what they meant. The other form, the run's own arguments plus `--resume`, needs no
 //! expansion.
 //!
-//! Tests: `tests/delight.rs` (`interrupted_delight_resumes_to_the_same_bytes` resumes by
+//! Tests: `tests/delight_inputs.rs` (`interrupted_delight_resumes_to_the_same_bytes` resumes by
 //! OUTDIR; `resume_without_a_checkpoint_is_a_clear_error`).
 
 use anyhow::{Context, Result, bail};
