@@ -18,10 +18,32 @@ mod common;
 mod truth;
 
 use opal::scene::Scene;
-use opal_inverse::delight::views::read_views;
-use opal_inverse::delight::{DelightSettings, LightPaths, delight};
+use opal::scene::desc::SceneDesc;
+use opal_inverse::delight::views::{View, read_views};
+use opal_inverse::delight::{DelightResult, DelightSettings, LightPaths, delight};
 use std::path::{Path, PathBuf};
 use truth::{load, report, truth_albedos};
+
+/// The settings of these runs: `res`² maps, `paths` light paths per pass, 8 passes (no stop
+/// rule).
+fn fixed_passes(res: usize, paths: u64) -> DelightSettings {
+    DelightSettings {
+        resolution: Some(res),
+        light_paths: LightPaths::Fixed(paths),
+        iterations: 8,
+        tolerance: 0.0,
+        ..Default::default()
+    }
+}
+
+/// De-lights `views` of `desc` with `s` (progress printed) and prints the report: the result,
+/// the worst constant-albedo error and the wall seconds.
+fn run(desc: &SceneDesc, views: &[View], s: &DelightSettings) -> (DelightResult, f64, f64) {
+    let t0 = std::time::Instant::now();
+    let r = delight(desc, views, s, &|l| println!("{l}")).unwrap();
+    let worst = report(&r, desc);
+    (r, worst, t0.elapsed().as_secs_f64())
+}
 
 fn lights_small() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/lights_small")
@@ -47,17 +69,9 @@ fn lights_small_constant_albedos_within_1_percent() {
     // with the planar unwrap of the time it read +20 to +35 %), at 64² every object is within
     // 1.4 %. 8 passes: the fixed point settles after 6–7 (re-rendering error 38 % after 5
     // passes, 1.5 % after 8).
-    let s = DelightSettings {
-        resolution: Some(128),
-        light_paths: LightPaths::Fixed(2_000_000),
-        iterations: 8,
-        tolerance: 0.0,
-        ..Default::default()
-    };
-    let t0 = std::time::Instant::now();
-    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
-    let worst = report(&r, &desc);
-    println!("worst constant-albedo error {:.2} % ({:.1} s)", 100.0 * worst, t0.elapsed().as_secs_f64());
+    let s = fixed_passes(128, 2_000_000);
+    let (_, worst, secs) = run(&desc, &views, &s);
+    println!("worst constant-albedo error {:.2} % ({:.1} s)", 100.0 * worst, secs);
     assert_eq!(truth_albedos(&desc).len(), 8);
     assert!(worst < 0.01, "acceptance: constant albedos within 1 %: worst {worst}");
 }
@@ -89,17 +103,9 @@ fn env_small_constant_albedos_within_1_percent() {
     assert_eq!(desc.emitters.len(), 1);
     let (views, warn) = read_views(&dir.join("transforms.json")).unwrap();
     assert!(warn.is_empty(), "{warn:?}");
-    let s = DelightSettings {
-        resolution: Some(128),
-        light_paths: LightPaths::Fixed(2_000_000),
-        iterations: 8,
-        tolerance: 0.0,
-        ..Default::default()
-    };
-    let t0 = std::time::Instant::now();
-    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
-    let worst = report(&r, &desc);
-    println!("worst constant-albedo error {:.2} % ({:.1} s)", 100.0 * worst, t0.elapsed().as_secs_f64());
+    let s = fixed_passes(128, 2_000_000);
+    let (_, worst, secs) = run(&desc, &views, &s);
+    println!("worst constant-albedo error {:.2} % ({:.1} s)", 100.0 * worst, secs);
     assert_eq!(truth_albedos(&desc).len(), 5);
     assert!(worst < 0.01, "acceptance: constant albedos within 1 %: worst {worst}");
 }
@@ -147,22 +153,9 @@ fn lights_small_power_sampled_lights_within_1_percent() {
     // more than the direct estimator's MAX_LIGHTS_PER_TEXEL (16, a private constant)
     assert!(n_lights > 16, "{n_lights} lights");
     let (views, _) = read_views(&dir.join("transforms.json")).unwrap();
-    let s = DelightSettings {
-        resolution: Some(128),
-        light_paths: LightPaths::Fixed(2_000_000),
-        iterations: 8,
-        direct_samples: 256,
-        tolerance: 0.0,
-        ..Default::default()
-    };
-    let t0 = std::time::Instant::now();
-    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
-    let worst = report(&r, &desc);
-    println!(
-        "{n_lights} lights: worst constant-albedo error {:.2} % ({:.1} s)",
-        100.0 * worst,
-        t0.elapsed().as_secs_f64()
-    );
+    let s = DelightSettings { direct_samples: 256, ..fixed_passes(128, 2_000_000) };
+    let (_, worst, secs) = run(&desc, &views, &s);
+    println!("{n_lights} lights: worst constant-albedo error {:.2} % ({:.1} s)", 100.0 * worst, secs);
     assert!(worst < 0.01, "constant albedos within 1 %: worst {worst}");
 }
 
@@ -181,15 +174,8 @@ fn lights_small_coarse_atlas_sphere() {
     let dir = lights_small();
     let desc = load(&dir.join("scene.xml"));
     let (views, _) = read_views(&dir.join("transforms.json")).unwrap();
-    let s = DelightSettings {
-        resolution: Some(32),
-        light_paths: LightPaths::Fixed(2_000_000),
-        iterations: 8,
-        tolerance: 0.0,
-        ..Default::default()
-    };
-    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
-    report(&r, &desc);
+    let s = fixed_passes(32, 2_000_000);
+    let (r, _, _) = run(&desc, &views, &s);
     let o = r.objects.iter().find(|o| o.id == "sphere").unwrap();
     let (t, m) =
         (truth_albedos(&desc).into_iter().find(|(id, _)| id == "sphere").unwrap().1, o.mean_kd_observed());
@@ -268,15 +254,8 @@ fn env_small_8m_paths_within_1_percent() {
     let desc = load(&dir.join("scene.xml"));
     let (views, warn) = read_views(&dir.join("transforms.json")).unwrap();
     assert!(warn.is_empty(), "{warn:?}");
-    let s = DelightSettings {
-        resolution: Some(128),
-        light_paths: LightPaths::Fixed(8_000_000),
-        iterations: 8,
-        tolerance: 0.0,
-        ..Default::default()
-    };
-    let r = delight(&desc, &views, &s, &|l| println!("{l}")).unwrap();
-    let worst = report(&r, &desc);
+    let s = fixed_passes(128, 8_000_000);
+    let (_, worst, _) = run(&desc, &views, &s);
     assert_eq!(truth_albedos(&desc).len(), 5);
     assert!(worst < 0.01, "constant albedos within 1 % at 8 M paths: worst {worst}");
 }

@@ -434,6 +434,7 @@ impl<'a> Lanes<'a> {
 /// lanes in `small`, whose units are below 2³¹ in magnitude; the others are left to
 /// [`deposit`]), their sum of magnitudes and the map number `2·shape + direct`; `target` =
 /// the lanes whose triangle's hits deposit.
+#[derive(Default)]
 pub(super) struct DepositLanes {
     pub(super) index: [i32; W],
     pub(super) value: [[i32; W]; 3],
@@ -617,14 +618,8 @@ impl Wavefront {
                         let dv = if tab.vector_deposits {
                             avx::deposit_values(rows, &prim, &v.uv, &ln.beta, &ln.depth)
                         } else {
-                            DepositLanes {
-                                index: [0; W],
-                                value: [[0; W]; 3],
-                                units: [0; W],
-                                map: [0; W],
-                                small: 0,
-                                target: 0,
-                            }
+                            // (no lane small: every deposit through `deposit`)
+                            DepositLanes::default()
                         };
                         // `deposit` of the lanes whose units fit the queue, straight into the sink
                         // (first-hit deposits only when asked for)
